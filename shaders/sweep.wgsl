@@ -1,0 +1,241 @@
+// Conservative sweep (paper section 4) as a compute shader: one invocation per posed triangle
+// renders the triangle's δ-offset into the three axis images by exact ray casts, folding hits in
+// with atomic min/max. CPU twin: src/sweep/cpu.rs (`splat`, `pose_triangle`) and
+// src/sweep/offset.rs (`ray_interval`, `encode`). Keep them in step, formula for formula.
+//
+// Units: grid units (1 = one voxel edge) from the grid's min corner. Pixel (col, row) of the
+// image of axis a is the ray through (col + 1/2, height - 1 - row + 1/2) in the image plane
+// (columns along COLUMN_AXIS[a], rows along ROW_AXIS[a]); each pixel holds two u32 slots,
+// encode(D-) and encode(D+).
+
+// Must match `GpuParams` in src/sweep/gpu.rs.
+struct Params {
+    tri_start: u32,   // first triangle of this dispatch
+    tri_count: u32,   // triangles in this dispatch (global_id.x)
+    pose_start: u32,  // first pose of this dispatch
+    pose_count: u32,  // poses in this dispatch (global_id.y)
+    dim_x: u32,
+    dim_y: u32,
+    dim_z: u32,
+    radius: f32,      // δ + rounding term, grid units
+}
+
+@group(0) @binding(0) var<uniform> params: Params;
+// Triangles: 9 floats each, three vertices in the part's local frame.
+@group(0) @binding(1) var<storage, read> triangles: array<f32>;
+// Poses: 12 floats each, a row-major 3x4 matrix from the local frame to grid units.
+@group(0) @binding(2) var<storage, read> poses: array<f32>;
+@group(0) @binding(3) var<storage, read_write> image_x: array<atomic<u32>>;
+@group(0) @binding(4) var<storage, read_write> image_y: array<atomic<u32>>;
+@group(0) @binding(5) var<storage, read_write> image_z: array<atomic<u32>>;
+
+// Same constant as MIN_PROJECTED_EDGE2 in offset.rs.
+const MIN_PROJECTED_EDGE2: f32 = 1e-20;
+// Stands in for +inf as the empty interval's start (WGSL has no infinity literal).
+const BIG: f32 = 3.0e38;
+
+// Order-preserving f32 -> u32 (offset.rs `encode`).
+fn encode_depth(x: f32) -> u32 {
+    let b = bitcast<u32>(x);
+    if (b & 0x80000000u) != 0u {
+        return ~b;
+    }
+    return b | 0x80000000u;
+}
+
+fn cross2(a: vec2<f32>, b: vec2<f32>) -> f32 {
+    return a.x * b.y - a.y * b.x;
+}
+
+// offset.rs `ray_interval`: where the ray {(0,0,t)} is within d of triangle q (ray frame,
+// components (u, v, a)). Returns (t0, t1); empty when t0 > t1.
+fn ray_interval(q0: vec3<f32>, q1: vec3<f32>, q2: vec3<f32>, d: f32) -> vec2<f32> {
+    let d2 = d * d;
+    var t0 = BIG;
+    var t1 = -BIG;
+    var q = array<vec3<f32>, 3>(q0, q1, q2);
+
+    // Vertex balls.
+    for (var k = 0u; k < 3u; k++) {
+        let p = q[k];
+        let r2 = p.x * p.x + p.y * p.y;
+        if r2 <= d2 {
+            let s = sqrt(d2 - r2);
+            t0 = min(t0, p.z - s);
+            t1 = max(t1, p.z + s);
+        }
+    }
+
+    // Edge cylinders, evaluated at the clamped optimal edge parameter.
+    for (var k = 0u; k < 3u; k++) {
+        let a = q[k];
+        let e = q[(k + 1u) % 3u] - a;
+        let e_uv2 = e.x * e.x + e.y * e.y;
+        if e_uv2 <= MIN_PROJECTED_EDGE2 {
+            continue;
+        }
+        let c = cross2(a.xy, e.xy);
+        let m2 = c * c / e_uv2;
+        if m2 >= d2 {
+            continue;
+        }
+        let r = sqrt(d2 - m2);
+        let e_len = sqrt(e_uv2 + e.z * e.z);
+        let s_star = -dot(a.xy, e.xy) / e_uv2;
+        let shift = r * e.z / (e_len * sqrt(e_uv2));
+        for (var side = 0u; side < 2u; side++) {
+            var s = s_star - shift;
+            var sgn = -1.0;
+            if side == 1u {
+                s = s_star + shift;
+                sgn = 1.0;
+            }
+            s = clamp(s, 0.0, 1.0);
+            let pu = a.x + s * e.x;
+            let pv = a.y + s * e.y;
+            let rho2 = pu * pu + pv * pv;
+            if rho2 <= d2 {
+                let t = a.z + s * e.z + sgn * sqrt(d2 - rho2);
+                t0 = min(t0, t);
+                t1 = max(t1, t);
+            }
+        }
+    }
+
+    // Prism caps: the foot of the cap point on the triangle, by barycentrics.
+    let e1 = q1 - q0;
+    let e2 = q2 - q0;
+    let n = cross(e1, e2);
+    let n_len = sqrt(dot(n, n));
+    if n_len > 0.0 && n.z != 0.0 {
+        var sgn = -1.0;
+        if n.z > 0.0 {
+            sgn = 1.0;
+        }
+        let na_abs = abs(n.z) / n_len;
+        let foot_scale = d * sgn / n_len;
+        for (var side = 0u; side < 2u; side++) {
+            var sd = 1.0;
+            var dir = -1.0;
+            if side == 1u {
+                sd = -1.0;
+                dir = 1.0;
+            }
+            let f = vec2<f32>(sd * foot_scale * n.x, sd * foot_scale * n.y);
+            let g = f - q0.xy;
+            let b1 = cross2(g, e2.xy) / n.z;
+            let b2 = cross2(e1.xy, g) / n.z;
+            if b1 >= 0.0 && b2 >= 0.0 && b1 + b2 <= 1.0 {
+                let y_a = q0.z + b1 * e1.z + b2 * e2.z;
+                let t = y_a + dir * d * na_abs;
+                t0 = min(t0, t);
+                t1 = max(t1, t);
+            }
+        }
+    }
+    return vec2<f32>(t0, t1);
+}
+
+fn store(axis: u32, slot: u32, t0: f32, t1: f32) {
+    let lo = encode_depth(t0);
+    let hi = encode_depth(t1);
+    if axis == 0u {
+        atomicMin(&image_x[slot], lo);
+        atomicMax(&image_x[slot + 1u], hi);
+    } else if axis == 1u {
+        atomicMin(&image_y[slot], lo);
+        atomicMax(&image_y[slot + 1u], hi);
+    } else {
+        atomicMin(&image_z[slot], lo);
+        atomicMax(&image_z[slot + 1u], hi);
+    }
+}
+
+// cpu.rs `pixel_span`: pixels whose centres k + 1/2 lie in [lo - r, hi + r], clamped.
+fn pixel_span(a: f32, b: f32, c: f32, r: f32, count: u32) -> vec2<i32> {
+    let lo = max(ceil(min(min(a, b), c) - r - 0.5), 0.0);
+    let hi = min(floor(max(max(a, b), c) + r - 0.5), f32(count) - 1.0);
+    if lo > hi {
+        return vec2<i32>(1, 0);
+    }
+    return vec2<i32>(i32(lo), i32(hi));
+}
+
+fn component(p: vec3<f32>, k: u32) -> f32 {
+    if k == 0u {
+        return p.x;
+    } else if k == 1u {
+        return p.y;
+    }
+    return p.z;
+}
+
+// cpu.rs `splat`: ray-cast the posed triangle against every pixel its offset can cover.
+fn splat(p0: vec3<f32>, p1: vec3<f32>, p2: vec3<f32>, axis: u32) {
+    // COLUMN_AXIS = [2, 0, 0], ROW_AXIS = [1, 2, 1] (depth.rs).
+    var cu = 0u;
+    var rv = 1u;
+    if axis == 0u {
+        cu = 2u;
+        rv = 1u;
+    } else if axis == 1u {
+        cu = 0u;
+        rv = 2u;
+    }
+    var dims = array<u32, 3>(params.dim_x, params.dim_y, params.dim_z);
+    let width = dims[cu];
+    let height = dims[rv];
+    let r = params.radius;
+    let cs = pixel_span(component(p0, cu), component(p1, cu), component(p2, cu), r, width);
+    let rs = pixel_span(component(p0, rv), component(p1, rv), component(p2, rv), r, height);
+    if cs.x > cs.y || rs.x > rs.y {
+        return;
+    }
+    let a0 = vec3<f32>(component(p0, cu), component(p0, rv), component(p0, axis));
+    let a1 = vec3<f32>(component(p1, cu), component(p1, rv), component(p1, axis));
+    let a2 = vec3<f32>(component(p2, cu), component(p2, rv), component(p2, axis));
+    for (var row = rs.x; row <= rs.y; row++) {
+        let pv = f32(row) + 0.5;
+        for (var col = cs.x; col <= cs.y; col++) {
+            let pu = f32(col) + 0.5;
+            let o = vec3<f32>(pu, pv, 0.0);
+            let hit = ray_interval(a0 - o, a1 - o, a2 - o, r);
+            if hit.x <= hit.y {
+                let pixel = (height - 1u - u32(row)) * width + u32(col);
+                store(axis, 2u * pixel, hit.x, hit.y);
+            }
+        }
+    }
+}
+
+// cpu.rs `pose_triangle`: p = M·v, M row-major 3x4.
+fn pose_point(m: u32, x: f32, y: f32, z: f32) -> vec3<f32> {
+    var out: vec3<f32>;
+    for (var r = 0u; r < 3u; r++) {
+        let b = m + 4u * r;
+        let c = poses[b] * x + poses[b + 1u] * y + poses[b + 2u] * z + poses[b + 3u];
+        if r == 0u {
+            out.x = c;
+        } else if r == 1u {
+            out.y = c;
+        } else {
+            out.z = c;
+        }
+    }
+    return out;
+}
+
+@compute @workgroup_size(64, 1, 1)
+fn sweep_main(@builtin(global_invocation_id) id: vec3<u32>) {
+    if id.x >= params.tri_count || id.y >= params.pose_count {
+        return;
+    }
+    let t = 9u * (params.tri_start + id.x);
+    let m = 12u * (params.pose_start + id.y);
+    let p0 = pose_point(m, triangles[t], triangles[t + 1u], triangles[t + 2u]);
+    let p1 = pose_point(m, triangles[t + 3u], triangles[t + 4u], triangles[t + 5u]);
+    let p2 = pose_point(m, triangles[t + 6u], triangles[t + 7u], triangles[t + 8u]);
+    for (var axis = 0u; axis < 3u; axis++) {
+        splat(p0, p1, p2, axis);
+    }
+}

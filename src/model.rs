@@ -1,0 +1,56 @@
+//! The inputs after parsing: parts of the generator and the poses that move them.
+//! Plain data, no I/O. Produced by `io::gltf_in` and `io::trajectory`, consumed by `job`.
+
+use glam::{DMat4, Vec3};
+
+/// One glTF node's own mesh: all its TRIANGLES primitives merged.
+#[derive(Debug, Clone)]
+pub struct Part {
+    /// Index of the node in the glTF document.
+    pub node_index: usize,
+    /// The node's name, if it has one.
+    pub node_name: Option<String>,
+    /// The node's world matrix W (parents applied), glTF conventions (Y up, metres).
+    pub world: DMat4,
+    /// Vertex positions exactly as stored in the file (node-local frame, f32).
+    pub positions: Vec<Vec3>,
+    /// Triangles as indices into `positions`. Degenerate, duplicate and
+    /// inconsistently wound triangles are kept: the sweep does not care.
+    pub triangles: Vec<[u32; 3]>,
+}
+
+/// The generator: every part of the chosen scene.
+#[derive(Debug, Clone, Default)]
+pub struct Generator {
+    pub parts: Vec<Part>,
+    /// Things skipped while reading (points and lines primitives, ...), for the report and the log.
+    pub warnings: Vec<String>,
+}
+
+impl Generator {
+    pub fn triangle_count(&self) -> usize {
+        self.parts.iter().map(|p| p.triangles.len()).sum()
+    }
+}
+
+/// One row of the trajectory CSV.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Pose {
+    /// 1-based line of the CSV row, for messages.
+    pub line: u64,
+    /// The `frame` or `time` value, if the file has that column.
+    pub frame: Option<f64>,
+    /// The node this row moves (`node` column); `None` moves the whole scene.
+    pub node: Option<String>,
+    /// Affine map M in glTF world coordinates: v' = M·(W·v). Last row is 0 0 0 1,
+    /// the upper 3x3 is invertible, every entry finite.
+    pub matrix: DMat4,
+}
+
+/// The parsed trajectory: poses in file order.
+#[derive(Debug, Clone, Default)]
+pub struct Trajectory {
+    pub poses: Vec<Pose>,
+    /// True when the file has a `node` column.
+    pub has_node_column: bool,
+}

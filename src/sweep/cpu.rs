@@ -1,0 +1,96 @@
+//! CPU twin of `shaders/sweep.wgsl`: the same loops, the same f32 formulas, the same encoding
+//! and atomic min/max, run on rayon threads. Keep the two in step.
+
+use std::sync::atomic::{AtomicU32, Ordering};
+
+use rayon::prelude::*;
+
+use super::offset::{encode, ray_interval};
+use super::{empty_encoded, Cancelled, Observer, SLOTS};
+use crate::depth::{DepthImages, COLUMN_AXIS, ROW_AXIS};
+use crate::job::SweepInput;
+
+/// Triangles one rayon task renders under one pose.
+const TRIANGLES_PER_TASK: usize = 512;
+
+/// Render every posed triangle's offset into the six depth images.
+pub fn sweep(input: &SweepInput, observer: &dyn Observer) -> Result<DepthImages, Cancelled> {
+    let images: [Vec<AtomicU32>; 3] =
+        empty_encoded(input).map(|v| v.into_iter().map(AtomicU32::new).collect());
+    let dims = input.grid.dims;
+    let total = input.posed_triangles();
+    let mut done = 0u64;
+    for part in &input.parts {
+        let tris = &input.triangles
+            [part.tri_start as usize..(part.tri_start + part.tri_count) as usize];
+        let poses = &input.poses
+            [part.pose_start as usize..(part.pose_start + part.pose_count) as usize];
+        // Batches of poses so that progress and cancellation come every ~4M posed triangles.
+        let batch = (4_000_000 / tris.len().max(1)).clamp(1, 4096);
+        for pose_batch in poses.chunks(batch) {
+            if observer.cancelled() {
+                return Err(Cancelled);
+            }
+            pose_batch
+                .par_iter()
+                .flat_map(|m| tris.par_chunks(TRIANGLES_PER_TASK).map(move |c| (m, c)))
+                .for_each(|(m, chunk)| {
+                    for t in chunk {
+                        let posed = pose_triangle(m, t);
+                        for axis in 0..3 {
+                            splat(&posed, input.radius, axis, dims, &images[axis]);
+                        }
+                    }
+                });
+            done += (pose_batch.len() * tris.len()) as u64;
+            observer.progress(done, total);
+        }
+    }
+    let encoded = images.map(|v| v.into_iter().map(AtomicU32::into_inner).collect());
+    Ok(DepthImages::from_encoded(input.grid, encoded))
+}
+
+/// Local triangle to grid units: p = M·v with M row-major 3x4 (as `pose_point` in the shader).
+pub fn pose_triangle(m: &[f32; 12], t: &[f32; 9]) -> [[f32; 3]; 3] {
+    let mut out = [[0f32; 3]; 3];
+    for (k, p) in out.iter_mut().enumerate() {
+        let (x, y, z) = (t[3 * k], t[3 * k + 1], t[3 * k + 2]);
+        for (r, c) in p.iter_mut().enumerate() {
+            *c = m[4 * r] * x + m[4 * r + 1] * y + m[4 * r + 2] * z + m[4 * r + 3];
+        }
+    }
+    out
+}
+
+/// Ray-cast one posed triangle (grid units) against every pixel of the `axis` image that its
+/// offset can cover, and fold the hits into the image with atomic min/max.
+pub fn splat(p: &[[f32; 3]; 3], radius: f32, axis: usize, dims: [u32; 3], image: &[AtomicU32]) {
+    let (cu, rv) = (COLUMN_AXIS[axis], ROW_AXIS[axis]);
+    let (width, height) = (dims[cu], dims[rv]);
+    let Some((c0, c1)) = pixel_span(p[0][cu], p[1][cu], p[2][cu], radius, width) else {
+        return;
+    };
+    let Some((r0, r1)) = pixel_span(p[0][rv], p[1][rv], p[2][rv], radius, height) else {
+        return;
+    };
+    for row in r0..=r1 {
+        let pv = row as f32 + 0.5;
+        for col in c0..=c1 {
+            let pu = col as f32 + 0.5;
+            let q = p.map(|v| [v[cu] - pu, v[rv] - pv, v[axis]]);
+            let hit = ray_interval(q, radius);
+            if hit.t0 <= hit.t1 {
+                let i = SLOTS * ((height - 1 - row) as usize * width as usize + col as usize);
+                image[i].fetch_min(encode(hit.t0), Ordering::Relaxed);
+                image[i + 1].fetch_max(encode(hit.t1), Ordering::Relaxed);
+            }
+        }
+    }
+}
+
+/// Pixels whose centres k + ½ lie in [min - r, max + r], clamped to 0..count; None if none do.
+pub fn pixel_span(a: f32, b: f32, c: f32, r: f32, count: u32) -> Option<(u32, u32)> {
+    let lo = (a.min(b).min(c) - r - 0.5).ceil().max(0.0);
+    let hi = (a.max(b).max(c) + r - 0.5).floor().min(count as f32 - 1.0);
+    (lo <= hi).then_some((lo as u32, hi as u32))
+}

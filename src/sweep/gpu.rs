@@ -1,0 +1,273 @@
+//! The sweep on wgpu: `shaders/sweep.wgsl` run as a compute shader. A [`Gpu`] is acquired once
+//! (adapter, device, pipeline) and reused for every sweep, as a long-running daemon needs.
+
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+
+use anyhow::{anyhow, bail, Context};
+use bytemuck::{Pod, Zeroable};
+
+use super::{empty_encoded, Cancelled, Observer, SLOTS};
+use crate::depth::DepthImages;
+use crate::job::SweepInput;
+
+pub const SHADER_SOURCE: &str = include_str!("../../shaders/sweep.wgsl");
+const WORKGROUP_SIZE: u32 = 64;
+const MAX_WORKGROUPS: u32 = 65535;
+/// Posed triangles per dispatch: large enough to fill a big GPU, small enough that progress and
+/// cancellation come several times a second on lavapipe.
+const POSED_TRIANGLES_PER_DISPATCH: u64 = 1 << 23;
+
+/// Must match `Params` in shaders/sweep.wgsl.
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct GpuParams {
+    tri_start: u32,
+    tri_count: u32,
+    pose_start: u32,
+    pose_count: u32,
+    dims: [u32; 3],
+    radius: f32,
+}
+
+/// A wgpu device ready to sweep.
+pub struct Gpu {
+    device: wgpu::Device,
+    queue: wgpu::Queue,
+    pipeline: wgpu::ComputePipeline,
+    pub info: wgpu::AdapterInfo,
+}
+
+/// Rank adapters: hardware GPUs first, CPU adapters (lavapipe) last.
+fn preference(info: &wgpu::AdapterInfo) -> u32 {
+    use wgpu::DeviceType::*;
+    match info.device_type {
+        DiscreteGpu => 0,
+        IntegratedGpu => 1,
+        VirtualGpu => 2,
+        Other => 3,
+        Cpu => 4,
+    }
+}
+
+/// Whether an adapter is a CPU implementation (lavapipe, llvmpipe, WARP).
+pub fn is_cpu_adapter(info: &wgpu::AdapterInfo) -> bool {
+    info.device_type == wgpu::DeviceType::Cpu
+}
+
+impl Gpu {
+    /// The best adapter on Vulkan, Metal or DX12. With `allow_cpu_adapter` false, CPU adapters
+    /// are not taken (`--backend auto` then falls back to the CPU twin, which is faster).
+    /// Returns Ok(None) when no suitable adapter exists.
+    pub fn acquire(allow_cpu_adapter: bool) -> anyhow::Result<Option<Gpu>> {
+        let instance =
+            wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+        let mut adapters = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::PRIMARY));
+        adapters.retain(|a| allow_cpu_adapter || !is_cpu_adapter(&a.get_info()));
+        adapters.retain(|a| {
+            a.get_downlevel_capabilities()
+                .flags
+                .contains(wgpu::DownlevelFlags::COMPUTE_SHADERS)
+        });
+        adapters.sort_by_key(|a| preference(&a.get_info()));
+        let Some(adapter) = adapters.into_iter().next() else {
+            return Ok(None);
+        };
+        let info = adapter.get_info();
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("sweptvol"),
+            required_features: wgpu::Features::empty(),
+            required_limits: adapter.limits(),
+            ..Default::default()
+        }))
+        .with_context(|| format!("could not open the GPU device {}", info.name))?;
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("sweep.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(SHADER_SOURCE.into()),
+        });
+        let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some("sweep"),
+            layout: None,
+            module: &module,
+            entry_point: Some("sweep_main"),
+            compilation_options: Default::default(),
+            cache: None,
+        });
+        Ok(Some(Gpu {
+            device,
+            queue,
+            pipeline,
+            info,
+        }))
+    }
+
+    /// A one-line description of the adapter for logs and reports.
+    pub fn describe(&self) -> String {
+        format!(
+            "{} ({:?}, {:?})",
+            self.info.name, self.info.device_type, self.info.backend
+        )
+    }
+
+    fn storage(&self, label: &str, bytes: &[u8], extra: wgpu::BufferUsages) -> wgpu::Buffer {
+        // Bindings may not be empty: pad to one word.
+        let size = (bytes.len() as u64).max(4);
+        let buffer = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST | extra,
+            mapped_at_creation: false,
+        });
+        if !bytes.is_empty() {
+            self.queue.write_buffer(&buffer, 0, bytes);
+        }
+        buffer
+    }
+
+    /// Render every posed triangle of `input` into fresh depth images.
+    pub fn sweep(&self, input: &SweepInput, observer: &dyn Observer) -> anyhow::Result<DepthImages> {
+        let limits = self.device.limits();
+        let encoded = empty_encoded(input);
+        let image_bytes: u64 = encoded.iter().map(|e| 4 * e.len() as u64).max().unwrap_or(0);
+        let input_bytes = (36 * input.triangles.len()).max(48 * input.poses.len()) as u64;
+        let binding_limit = (limits.max_storage_buffer_binding_size as u64).min(limits.max_buffer_size);
+        if image_bytes.max(input_bytes) > binding_limit {
+            bail!(
+                "the sweep needs a {} MiB GPU buffer but {} allows {} MiB; lower the resolution or use --backend cpu",
+                image_bytes.max(input_bytes) >> 20,
+                self.info.name,
+                binding_limit >> 20
+            );
+        }
+        let tris = self.storage("triangles", bytemuck::cast_slice(&input.triangles), wgpu::BufferUsages::empty());
+        let poses = self.storage("poses", bytemuck::cast_slice(&input.poses), wgpu::BufferUsages::empty());
+        let images: Vec<wgpu::Buffer> = encoded
+            .iter()
+            .enumerate()
+            .map(|(a, e)| self.storage(&format!("image {a}"), bytemuck::cast_slice(e), wgpu::BufferUsages::COPY_SRC))
+            .collect();
+        let params = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("params"),
+            size: std::mem::size_of::<GpuParams>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let layout = self.pipeline.get_bind_group_layout(0);
+        let bind_group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("sweep"),
+            layout: &layout,
+            entries: &[
+                entry(0, &params),
+                entry(1, &tris),
+                entry(2, &poses),
+                entry(3, &images[0]),
+                entry(4, &images[1]),
+                entry(5, &images[2]),
+            ],
+        });
+
+        let total = input.posed_triangles();
+        let done = Arc::new(AtomicU64::new(0));
+        let mut previous: Option<wgpu::SubmissionIndex> = None;
+        let max_tris_per_dispatch = MAX_WORKGROUPS * WORKGROUP_SIZE;
+        for part in &input.parts {
+            let mut tri_offset = 0;
+            while tri_offset < part.tri_count {
+                let tri_count = (part.tri_count - tri_offset).min(max_tris_per_dispatch);
+                let batch = (POSED_TRIANGLES_PER_DISPATCH / tri_count as u64).clamp(1, MAX_WORKGROUPS as u64) as u32;
+                let mut pose_offset = 0;
+                while pose_offset < part.pose_count {
+                    if observer.cancelled() {
+                        self.wait(None)?;
+                        return Err(Cancelled.into());
+                    }
+                    let pose_count = (part.pose_count - pose_offset).min(batch);
+                    let p = GpuParams {
+                        tri_start: part.tri_start + tri_offset,
+                        tri_count,
+                        pose_start: part.pose_start + pose_offset,
+                        pose_count,
+                        dims: input.grid.dims,
+                        radius: input.radius,
+                    };
+                    self.queue.write_buffer(&params, 0, bytemuck::bytes_of(&p));
+                    let mut encoder = self.device.create_command_encoder(&Default::default());
+                    {
+                        let mut pass = encoder.begin_compute_pass(&Default::default());
+                        pass.set_pipeline(&self.pipeline);
+                        pass.set_bind_group(0, &bind_group, &[]);
+                        pass.dispatch_workgroups(tri_count.div_ceil(WORKGROUP_SIZE), pose_count, 1);
+                    }
+                    let index = self.queue.submit([encoder.finish()]);
+                    let work = tri_count as u64 * pose_count as u64;
+                    let counter = done.clone();
+                    self.queue.on_submitted_work_done(move || {
+                        counter.fetch_add(work, Ordering::Relaxed);
+                    });
+                    // At most two submissions in flight: the GPU stays busy, progress stays fresh.
+                    if let Some(prev) = previous.replace(index) {
+                        self.wait(Some(prev))?;
+                    }
+                    observer.progress(done.load(Ordering::Relaxed), total);
+                    pose_offset += pose_count;
+                }
+                tri_offset += tri_count;
+            }
+        }
+        self.wait(None)?;
+        observer.progress(done.load(Ordering::Relaxed), total);
+        let mut out = Vec::with_capacity(3);
+        for buffer in &images {
+            out.push(self.read_back(buffer)?);
+        }
+        let encoded: [Vec<u32>; 3] = out.try_into().map_err(|_| anyhow!("three images"))?;
+        debug_assert!(encoded.iter().all(|e| e.len() % SLOTS == 0));
+        Ok(DepthImages::from_encoded(input.grid, encoded))
+    }
+
+    fn wait(&self, index: Option<wgpu::SubmissionIndex>) -> anyhow::Result<()> {
+        self.device
+            .poll(wgpu::PollType::Wait {
+                submission_index: index,
+                timeout: None,
+            })
+            .map(|_| ())
+            .map_err(|e| anyhow!("GPU device error while sweeping: {e}"))
+    }
+
+    fn read_back(&self, buffer: &wgpu::Buffer) -> anyhow::Result<Vec<u32>> {
+        let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("read back"),
+            size: buffer.size(),
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut encoder = self.device.create_command_encoder(&Default::default());
+        encoder.copy_buffer_to_buffer(buffer, 0, &staging, 0, buffer.size());
+        self.queue.submit([encoder.finish()]);
+        let slice = staging.slice(..);
+        let (tx, rx) = std::sync::mpsc::channel();
+        slice.map_async(wgpu::MapMode::Read, move |r| {
+            let _ = tx.send(r);
+        });
+        self.wait(None)?;
+        rx.recv()
+            .map_err(|_| anyhow!("GPU read-back was dropped"))?
+            .map_err(|e| anyhow!("GPU read-back failed: {e}"))?;
+        let data = {
+            let view = slice
+                .get_mapped_range()
+                .map_err(|e| anyhow!("GPU read-back failed: {e:?}"))?;
+            bytemuck::cast_slice::<u8, u32>(&view).to_vec()
+        };
+        staging.unmap();
+        Ok(data)
+    }
+}
+
+fn entry(binding: u32, buffer: &wgpu::Buffer) -> wgpu::BindGroupEntry<'_> {
+    wgpu::BindGroupEntry {
+        binding,
+        resource: buffer.as_entire_binding(),
+    }
+}

@@ -1,0 +1,52 @@
+//! The conservative sweep (paper section 4): render the δ-offset of every posed triangle into
+//! the six depth images, never clearing them. Two backends compute the same definition: the
+//! wgpu compute path (`gpu`) and its CPU twin (`cpu`), which is also the test oracle.
+
+pub mod cpu;
+pub mod gpu;
+pub mod offset;
+
+use crate::job::SweepInput;
+
+/// Pixel slots per pixel in the encoded buffers: enc(D⁻), enc(D⁺).
+pub const SLOTS: usize = 2;
+/// Encoded value an empty D⁻ slot starts at (enc(+inf)); D⁺ starts at enc(-inf).
+pub const EMPTY_MIN: u32 = 0xFF80_0000;
+pub const EMPTY_MAX: u32 = 0x007F_FFFF;
+
+/// Watches a long sweep: progress, and a way to stop early.
+pub trait Observer: Sync {
+    /// `done` of `total` posed triangles are rendered.
+    fn progress(&self, _done: u64, _total: u64) {}
+    /// Checked between batches; true stops the sweep with [`Cancelled`].
+    fn cancelled(&self) -> bool {
+        false
+    }
+}
+
+/// An observer that ignores everything.
+pub struct Silent;
+impl Observer for Silent {}
+
+/// The sweep stopped because the observer asked it to.
+#[derive(Debug, thiserror::Error)]
+#[error("cancelled")]
+pub struct Cancelled;
+
+/// Buffers of encoded (D⁻, D⁺) pairs, one per axis, all slots empty.
+pub fn empty_encoded(input: &SweepInput) -> [Vec<u32>; 3] {
+    [0, 1, 2].map(|a| {
+        let (w, h) = crate::depth::image_size(&input.grid, a);
+        let mut v = Vec::with_capacity(SLOTS * w as usize * h as usize);
+        for _ in 0..(w as usize * h as usize) {
+            v.push(EMPTY_MIN);
+            v.push(EMPTY_MAX);
+        }
+        v
+    })
+}
+
+/// Total poses over all parts (the progress unit).
+pub fn total_poses(input: &SweepInput) -> u64 {
+    input.parts.iter().map(|p| p.pose_count as u64).sum()
+}
