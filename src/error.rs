@@ -4,7 +4,7 @@ use std::fmt;
 use std::path::{Path, PathBuf};
 
 /// A problem with an input file. `Display` gives one line a person can act on:
-/// `part.csv:12: column "qw": quaternion has norm 0.5 (fix: write a unit quaternion ...)`.
+/// `part.csv:12: qw: quaternion has norm 0.5 (fix: write a unit quaternion ...)`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct InputError {
     pub file: PathBuf,

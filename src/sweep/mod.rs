@@ -16,6 +16,8 @@ pub const EMPTY_MAX: u32 = 0x007F_FFFF;
 
 /// Watches a long sweep: progress, and a way to stop early.
 pub trait Observer: Sync {
+    /// The sweep is about to render `poses` poses, `posed_triangles` posed triangles in all.
+    fn begin(&self, _poses: u64, _posed_triangles: u64) {}
     /// `done` of `total` posed triangles are rendered.
     fn progress(&self, _done: u64, _total: u64) {}
     /// Checked between batches; true stops the sweep with [`Cancelled`].

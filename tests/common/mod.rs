@@ -68,7 +68,7 @@ pub fn line_interval(tri: [V3; 3], axis: usize, uv: [(usize, f64); 2], d: f64) -
     // Golden-section search for the minimum of a convex function.
     let (mut a, mut b) = (lo0, hi0);
     let g = (5f64.sqrt() - 1.0) / 2.0;
-    for _ in 0..200 {
+    for _ in 0..120 {
         let c = b - g * (b - a);
         let e = a + g * (b - a);
         if f(c) <= f(e) {
@@ -82,7 +82,7 @@ pub fn line_interval(tri: [V3; 3], axis: usize, uv: [(usize, f64); 2], d: f64) -
         return None;
     }
     let bisect = |mut inside: f64, mut outside: f64| {
-        for _ in 0..200 {
+        for _ in 0..80 {
             let mid = (inside + outside) / 2.0;
             if f(mid) <= d {
                 inside = mid;

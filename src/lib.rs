@@ -1,0 +1,13 @@
+//! sweptvol: conservative swept volumes of triangle meshes along discrete trajectories.
+//!
+//! Data flows one way: inputs (`io`) -> `job` (parts, poses, grid) -> `sweep`
+//! (GPU or its CPU twin) -> `depth::DepthImages`, the contract with the mesh stage.
+
+pub mod depth;
+pub mod error;
+pub mod grid;
+pub mod io;
+pub mod job;
+pub mod model;
+pub mod pipeline;
+pub mod sweep;

@@ -1,0 +1,164 @@
+//! The `sweptvol` command: a thin shell over the library. Flags become validated options,
+//! errors print once with their chain, and the exit code says what kind of failure it was.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+use clap::{Args, Parser, Subcommand};
+use indicatif::{ProgressBar, ProgressStyle};
+
+use sweptvol::error::InputError;
+use sweptvol::grid::{Accuracy, Overrides};
+use sweptvol::pipeline::{self, Backend, BackendChoice, RunOptions};
+use sweptvol::sweep::Observer;
+
+#[derive(Parser)]
+#[command(name = "sweptvol", version, about = "Conservative swept volumes of triangle meshes")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Sweep a glTF generator along a trajectory CSV and write the six depth images and a report.
+    Run(RunArgs),
+}
+
+#[derive(Args)]
+struct RunArgs {
+    /// The generator mesh: glTF 2.0 (.glb, or .gltf with its buffers beside it).
+    #[arg(long, value_name = "FILE")]
+    generator: PathBuf,
+    /// The poses: CSV with m00..m33 or tx,ty,tz,qw,qx,qy,qz columns (see the README).
+    #[arg(long, value_name = "FILE")]
+    trajectory: PathBuf,
+    /// Output folder (created if missing).
+    #[arg(long, value_name = "DIR")]
+    out: PathBuf,
+    /// Voxels along the longest edge of the grid [default: 256 unless --tolerance is given].
+    #[arg(long, value_name = "N", conflicts_with = "tolerance")]
+    resolution: Option<u32>,
+    /// Error bound ε_global in world units; sets the voxel size h = t/(2√3+√2).
+    #[arg(long, value_name = "T")]
+    tolerance: Option<f64>,
+    /// Offset radius δ in world units [default: (2√3+√2)h/2].
+    #[arg(long, value_name = "D")]
+    delta: Option<f64>,
+    /// Simplification tolerance ε in world units [default: √3h/2].
+    #[arg(long, value_name = "E")]
+    epsilon: Option<f64>,
+    /// Where the sweep runs: auto takes a hardware GPU if present, else the CPU.
+    #[arg(long, value_enum, default_value_t = BackendChoice::Auto)]
+    backend: BackendChoice,
+    /// Output file stem [default: the trajectory's file stem].
+    #[arg(long)]
+    name: Option<String>,
+    /// Replace existing outputs.
+    #[arg(long)]
+    overwrite: bool,
+    /// No progress bar and only warnings and errors in the log.
+    #[arg(long, short)]
+    quiet: bool,
+}
+
+/// Shows poses done on a terminal progress bar.
+struct Bar {
+    bar: ProgressBar,
+    poses: AtomicU64,
+}
+
+impl Observer for Bar {
+    fn begin(&self, poses: u64, _posed_triangles: u64) {
+        self.poses.store(poses, Ordering::Relaxed);
+        self.bar.set_length(poses);
+    }
+    fn progress(&self, done: u64, total: u64) {
+        let poses = self.poses.load(Ordering::Relaxed) as f64;
+        self.bar
+            .set_position((done as f64 / total.max(1) as f64 * poses).round() as u64);
+    }
+}
+
+fn run(args: RunArgs) -> anyhow::Result<()> {
+    let accuracy = match (args.resolution, args.tolerance) {
+        (_, Some(t)) => Accuracy::Tolerance(t),
+        (Some(n), None) => Accuracy::Resolution(n),
+        (None, None) => Accuracy::Resolution(256),
+    };
+    let opts = RunOptions {
+        generator: args.generator,
+        trajectory: args.trajectory,
+        out_dir: args.out,
+        name: args.name,
+        accuracy,
+        overrides: Overrides {
+            delta: args.delta,
+            epsilon: args.epsilon,
+        },
+        overwrite: args.overwrite,
+    };
+    let backend = Backend::acquire(args.backend)?;
+    if let Backend::Cpu { reason } = &backend {
+        if args.backend == BackendChoice::Auto {
+            tracing::warn!("{reason}");
+        }
+    }
+    let bar = if args.quiet {
+        ProgressBar::hidden()
+    } else {
+        ProgressBar::new(0).with_style(
+            ProgressStyle::with_template("sweeping {bar:40} {pos}/{len} poses, {elapsed} elapsed, ETA {eta}")
+                .expect("progress template"),
+        )
+    };
+    let observer = Bar {
+        bar,
+        poses: AtomicU64::new(0),
+    };
+    let report = pipeline::run(&opts, &backend, &observer)?;
+    observer.bar.finish_and_clear();
+    let t = &report.timings;
+    tracing::info!(
+        "done: {} posed triangles in {:.2} s ({:.3e}/s) on {}; wrote {} files to {}",
+        report.counts.posed_triangles,
+        t.sweep,
+        t.posed_triangles_per_second,
+        report.backend,
+        report.outputs.len(),
+        opts.out_dir.display()
+    );
+    Ok(())
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let quiet = match &cli.command {
+        Command::Run(a) => a.quiet,
+    };
+    let default_level = if quiet { "warn" } else { "info" };
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default_level)),
+        )
+        .with_writer(std::io::stderr)
+        .with_target(false)
+        .init();
+    let result = match cli.command {
+        Command::Run(args) => run(args),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            // 2: the input or the options are wrong; 1: anything else.
+            if e.downcast_ref::<InputError>().is_some() {
+                ExitCode::from(2)
+            } else {
+                ExitCode::from(1)
+            }
+        }
+    }
+}

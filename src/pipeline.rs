@@ -1,0 +1,313 @@
+//! One job from input files to output files: the API the CLI and the watcher share.
+//! Inputs are read and checked completely before anything is written; outputs are written
+//! under temporary names and renamed into place, and existing ones are kept unless asked.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::{bail, Context};
+use serde::Serialize;
+
+use crate::depth::{DepthImages, AXIS_NAMES};
+use crate::grid::{Accuracy, Grid, Overrides};
+use crate::io::exr_depth::{self, ExtraMeta, Side};
+use crate::io::{atomic, gltf_in, trajectory};
+use crate::job::{self, PartRange, SweepInput};
+use crate::sweep::{cpu, gpu::Gpu, Observer};
+
+/// Which sweep implementation runs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum BackendChoice {
+    /// A hardware GPU if there is one, else the CPU twin.
+    Auto,
+    /// wgpu on any adapter, CPU adapters such as lavapipe included.
+    Gpu,
+    /// The CPU twin (rayon).
+    Cpu,
+}
+
+/// A resolved backend: a GPU device (acquired once, reusable) or the CPU twin.
+pub enum Backend {
+    Gpu(Gpu),
+    Cpu { reason: String },
+}
+
+impl Backend {
+    /// Resolve a choice. `gpu` fails when no adapter exists; `auto` says why it falls back.
+    pub fn acquire(choice: BackendChoice) -> anyhow::Result<Backend> {
+        match choice {
+            BackendChoice::Cpu => Ok(Backend::Cpu {
+                reason: "--backend cpu".into(),
+            }),
+            BackendChoice::Gpu => match Gpu::acquire(true)? {
+                Some(g) => Ok(Backend::Gpu(g)),
+                None => bail!(
+                    "--backend gpu: no Vulkan/Metal/DX12 adapter with compute shaders found; install a driver (on Debian, lavapipe: apt-get install mesa-vulkan-drivers libvulkan1) or use --backend cpu"
+                ),
+            },
+            BackendChoice::Auto => match Gpu::acquire(false)? {
+                Some(g) => Ok(Backend::Gpu(g)),
+                None => Ok(Backend::Cpu {
+                    reason: "no hardware GPU adapter found: falling back to the CPU twin".into(),
+                }),
+            },
+        }
+    }
+
+    pub fn describe(&self) -> String {
+        match self {
+            Backend::Gpu(g) => format!("gpu: {}", g.describe()),
+            Backend::Cpu { reason } => format!(
+                "cpu: {} threads ({reason})",
+                rayon::current_num_threads()
+            ),
+        }
+    }
+
+    pub fn sweep(&self, input: &SweepInput, observer: &dyn Observer) -> anyhow::Result<DepthImages> {
+        match self {
+            Backend::Gpu(g) => g.sweep(input, observer),
+            Backend::Cpu { .. } => Ok(cpu::sweep(input, observer)?),
+        }
+    }
+}
+
+/// What `sweptvol run` was asked to do.
+#[derive(Clone, Debug)]
+pub struct RunOptions {
+    pub generator: PathBuf,
+    pub trajectory: PathBuf,
+    pub out_dir: PathBuf,
+    /// Output file stem; the trajectory's stem when None. Empty string: bare names
+    /// (`depth-xmin.exr`, `report.json`), as inside a watched job folder.
+    pub name: Option<String>,
+    pub accuracy: Accuracy,
+    pub overrides: Overrides,
+    pub overwrite: bool,
+}
+
+/// The report written beside the depth images (`<name>.report.json`).
+#[derive(Clone, Debug, Serialize)]
+pub struct Report {
+    pub sweptvol_version: String,
+    pub inputs: InputsReport,
+    pub grid: Grid,
+    /// Voxels along the longest edge (the paper's n).
+    pub resolution: u32,
+    pub parameters: ParametersReport,
+    pub backend: String,
+    pub counts: CountsReport,
+    /// Seconds per stage.
+    pub timings: TimingsReport,
+    pub outputs: Vec<PathBuf>,
+    pub depth_images: DepthImagesReport,
+    pub warnings: Vec<String>,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct InputsReport {
+    pub generator: PathBuf,
+    pub trajectory: PathBuf,
+    pub parts: Vec<PartRange>,
+    /// Parts that no trajectory row names: included once where they stand.
+    pub static_parts: Vec<String>,
+}
+
+/// Distances in world units.
+#[derive(Clone, Debug, Serialize)]
+pub struct ParametersReport {
+    pub voxel_size: f64,
+    pub delta: f64,
+    pub epsilon: f64,
+    pub sigma: f64,
+    /// Added to δ against f32 rounding (derived in `job::rounding_term`).
+    pub rounding: f64,
+    /// The radius rendered: δ + rounding.
+    pub delta_rendered: f64,
+    /// Every depth lies within the offset of radius δ + 2·rounding of the posed triangles.
+    pub delta_upper: f64,
+    /// The paper's ε_global = ε + δ + σ for the mesh stage.
+    pub epsilon_global: f64,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct CountsReport {
+    pub triangles: u64,
+    pub poses: u64,
+    pub posed_triangles: u64,
+    /// Pixels hit per image axis (x, y, z).
+    pub hit_pixels: [u64; 3],
+}
+
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct TimingsReport {
+    pub read_inputs: f64,
+    pub setup: f64,
+    pub sweep: f64,
+    pub write_outputs: f64,
+    pub total: f64,
+    /// Posed triangles per second in the sweep stage.
+    pub posed_triangles_per_second: f64,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct DepthImagesReport {
+    pub layout: String,
+    pub empty_pixels: String,
+    pub files: Vec<PathBuf>,
+}
+
+/// The stem used for output names.
+pub fn output_stem(opts: &RunOptions) -> anyhow::Result<String> {
+    let stem = match &opts.name {
+        Some(n) => n.clone(),
+        None => opts
+            .trajectory
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default(),
+    };
+    if stem.contains(['/', '\\']) || stem.starts_with('.') {
+        bail!("--name {stem:?} must be a plain file name without slashes or a leading dot");
+    }
+    if opts.name.is_none() && stem.is_empty() {
+        bail!("cannot derive an output name from {}; pass --name", opts.trajectory.display());
+    }
+    Ok(stem)
+}
+
+fn with_stem(stem: &str, suffix: &str) -> String {
+    if stem.is_empty() {
+        suffix.to_string()
+    } else {
+        format!("{stem}.{suffix}")
+    }
+}
+
+/// Every file `run` writes, in order: six depth images, then the report.
+pub fn output_paths(opts: &RunOptions) -> anyhow::Result<Vec<PathBuf>> {
+    let stem = output_stem(opts)?;
+    let mut out = Vec::new();
+    for axis in 0..3 {
+        for side in [Side::Min, Side::Max] {
+            out.push(opts.out_dir.join(exr_depth::depth_file_name(&stem, axis, side)));
+        }
+    }
+    out.push(opts.out_dir.join(with_stem(&stem, "report.json")));
+    Ok(out)
+}
+
+/// Run one job: read, sweep, write. Nothing is written if any input is bad.
+pub fn run(opts: &RunOptions, backend: &Backend, observer: &dyn Observer) -> anyhow::Result<Report> {
+    let t_start = Instant::now();
+    let outputs = output_paths(opts)?;
+    if !opts.overwrite {
+        if let Some(existing) = outputs.iter().find(|p| p.exists()) {
+            bail!(
+                "{} already exists; pass --overwrite to replace the outputs, or choose another --out or --name",
+                existing.display()
+            );
+        }
+    }
+
+    let generator = gltf_in::read_generator(&opts.generator)?;
+    let traj = trajectory::read_trajectory(&opts.trajectory)?;
+    for w in &generator.warnings {
+        tracing::warn!("{}: {w}", opts.generator.display());
+    }
+    let t_read = Instant::now();
+
+    let input = job::build(
+        &generator,
+        &opts.generator,
+        &traj,
+        &opts.trajectory,
+        opts.accuracy,
+        opts.overrides,
+    )?;
+    let t_setup = Instant::now();
+    tracing::info!(
+        "grid {}x{}x{} voxels of {:.6} (n = {}); {} posed triangles on {}",
+        input.grid.dims[0],
+        input.grid.dims[1],
+        input.grid.dims[2],
+        input.grid.h,
+        input.grid.resolution(),
+        input.posed_triangles(),
+        backend.describe()
+    );
+
+    observer.begin(crate::sweep::total_poses(&input), input.posed_triangles());
+    let images = backend.sweep(&input, observer)?;
+    let t_sweep = Instant::now();
+
+    let h = input.grid.h;
+    let extra = ExtraMeta {
+        delta: input.params.delta,
+        rounding: input.rounding * h,
+    };
+    std::fs::create_dir_all(&opts.out_dir)
+        .with_context(|| format!("could not create the output folder {}", opts.out_dir.display()))?;
+    let stem = output_stem(opts)?;
+    let files = exr_depth::write_all(&opts.out_dir, &stem, &images, &extra)?;
+    let t_write = Instant::now();
+
+    let secs = |a: Instant, b: Instant| (b - a).as_secs_f64();
+    let sweep_secs = secs(t_setup, t_sweep);
+    let report = Report {
+        sweptvol_version: env!("CARGO_PKG_VERSION").into(),
+        inputs: InputsReport {
+            generator: opts.generator.clone(),
+            trajectory: opts.trajectory.clone(),
+            static_parts: input
+                .parts
+                .iter()
+                .filter(|p| p.is_static)
+                .map(|p| p.name.clone())
+                .collect(),
+            parts: input.parts.clone(),
+        },
+        grid: input.grid,
+        resolution: input.grid.resolution(),
+        parameters: ParametersReport {
+            voxel_size: h,
+            delta: input.params.delta,
+            epsilon: input.params.epsilon,
+            sigma: input.params.sigma,
+            rounding: input.rounding * h,
+            delta_rendered: input.params.delta + input.rounding * h,
+            delta_upper: input.params.delta + 2.0 * input.rounding * h,
+            epsilon_global: input.params.epsilon + input.params.delta + input.params.sigma,
+        },
+        backend: backend.describe(),
+        counts: CountsReport {
+            triangles: input.triangles.len() as u64,
+            poses: input.parts.iter().map(|p| p.pose_count as u64).sum(),
+            posed_triangles: input.posed_triangles(),
+            hit_pixels: images.images.clone().map(|i| i.hit_count() as u64),
+        },
+        timings: TimingsReport {
+            read_inputs: secs(t_start, t_read),
+            setup: secs(t_read, t_setup),
+            sweep: sweep_secs,
+            write_outputs: secs(t_sweep, t_write),
+            total: secs(t_start, Instant::now()),
+            posed_triangles_per_second: input.posed_triangles() as f64 / sweep_secs.max(1e-9),
+        },
+        outputs: outputs.clone(),
+        depth_images: DepthImagesReport {
+            layout: format!(
+                "one EXR per axis and side; channel Z = world distance from the camera plane (the grid face the image is named after) along the view direction, rounded toward the camera; channel Y = 1 - Z / grid extent for viewers; columns along {} and rows (top first) along {} for axes x, y, z",
+                crate::depth::COLUMN_AXIS.map(|a| AXIS_NAMES[a]).join("/"),
+                crate::depth::ROW_AXIS.map(|a| AXIS_NAMES[a]).join("/")
+            ),
+            empty_pixels: "Z = +inf, Y = 0 (no offset on that ray)".into(),
+            files,
+        },
+        warnings: generator.warnings.clone(),
+    };
+    let json = serde_json::to_vec_pretty(&report)?;
+    atomic::write_atomic(outputs.last().expect("report path"), &json)?;
+    Ok(report)
+}

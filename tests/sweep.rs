@@ -1,0 +1,496 @@
+//! The sweep against known answers: analytic cases, the f64 oracle, the sample-point
+//! conservativeness property, and the GPU path against its CPU twin.
+
+mod common;
+
+use std::path::Path;
+
+use common::{line_interval, Rng, V3};
+use glam::{DMat4, DVec3, Vec3};
+use sweptvol::depth::{DepthImages, COLUMN_AXIS, ROW_AXIS};
+use sweptvol::grid::{Accuracy, Overrides};
+use sweptvol::job::{self, SweepInput};
+use sweptvol::model::{Generator, Part, Pose, Trajectory};
+use sweptvol::sweep::{cpu, gpu::Gpu, Silent};
+
+fn generator(positions: Vec<[f32; 3]>, triangles: Vec<[u32; 3]>) -> Generator {
+    Generator {
+        parts: vec![Part {
+            node_index: 0,
+            node_name: Some("part".into()),
+            world: DMat4::IDENTITY,
+            positions: positions.into_iter().map(Vec3::from).collect(),
+            triangles,
+        }],
+        warnings: vec![],
+    }
+}
+
+fn trajectory(poses: &[DMat4]) -> Trajectory {
+    Trajectory {
+        poses: poses
+            .iter()
+            .enumerate()
+            .map(|(i, m)| Pose {
+                line: i as u64 + 2,
+                frame: None,
+                node: None,
+                matrix: *m,
+            })
+            .collect(),
+        has_node_column: false,
+    }
+}
+
+fn build(g: &Generator, poses: &[DMat4], resolution: u32) -> SweepInput {
+    job::build(
+        g,
+        Path::new("test.glb"),
+        &trajectory(poses),
+        Path::new("test.csv"),
+        Accuracy::Resolution(resolution),
+        Overrides::default(),
+    )
+    .expect("job builds")
+}
+
+/// Every posed triangle in grid units (f64, posed exactly from the f64 matrices).
+fn posed_grid_triangles(g: &Generator, poses: &[DMat4], input: &SweepInput) -> Vec<[V3; 3]> {
+    let mut out = Vec::new();
+    for m in poses {
+        for part in &g.parts {
+            let full = *m * part.world;
+            for t in &part.triangles {
+                out.push(t.map(|i| {
+                    let w = full.transform_point3(part.positions[i as usize].as_dvec3());
+                    input.grid.to_grid(w).to_array()
+                }));
+            }
+        }
+    }
+    out
+}
+
+/// For every pixel of every image: the computed interval contains the exact interval of the
+/// δ-offset (oracle) and lies inside the exact interval of the (δ + 2ρ)-offset.
+fn check_against_oracle(input: &SweepInput, images: &DepthImages, tris: &[[V3; 3]]) {
+    let d = input.params.delta / input.grid.h;
+    let rho = input.rounding;
+    let mut checked_hits = 0;
+    for img in &images.images {
+        let a = img.axis;
+        let (cu, rv) = (COLUMN_AXIS[a], ROW_AXIS[a]);
+        for row in 0..img.height {
+            for col in 0..img.width {
+                let (u, v) = (col as f64 + 0.5, (img.height - 1 - row) as f64 + 0.5);
+                let near = |t: &&[V3; 3], r: f64| {
+                    let (lu, hu) = t.iter().fold((f64::MAX, f64::MIN), |m, p| (m.0.min(p[cu]), m.1.max(p[cu])));
+                    let (lv, hv) = t.iter().fold((f64::MAX, f64::MIN), |m, p| (m.0.min(p[rv]), m.1.max(p[rv])));
+                    u >= lu - r && u <= hu + r && v >= lv - r && v <= hv + r
+                };
+                let union = |r: f64| {
+                    tris.iter()
+                        .filter(|t| near(t, r))
+                        .filter_map(|t| line_interval(*t, a, [(cu, u), (rv, v)], r))
+                        .fold(None, |acc: Option<(f64, f64)>, (t0, t1)| {
+                            Some(acc.map_or((t0, t1), |(a0, a1)| (a0.min(t0), a1.max(t1))))
+                        })
+                };
+                let i = img.index(col, img.height - 1 - row);
+                let (got0, got1) = (img.min[i] as f64, img.max[i] as f64);
+                if let Some((t0, t1)) = union(d) {
+                    checked_hits += 1;
+                    assert!(
+                        got0 <= t0 && got1 >= t1,
+                        "axis {a} pixel ({col},{row}): exact [{t0}, {t1}] not inside [{got0}, {got1}]"
+                    );
+                }
+                if !img.is_empty_at(i) {
+                    let (w0, w1) = union(d + 2.0 * rho)
+                        .unwrap_or_else(|| panic!("axis {a} pixel ({col},{row}) hit where δ+2ρ misses"));
+                    assert!(
+                        got0 >= w0 - 1e-6 && got1 <= w1 + 1e-6,
+                        "axis {a} pixel ({col},{row}): [{got0}, {got1}] exceeds [{w0}, {w1}]"
+                    );
+                }
+            }
+        }
+    }
+    assert!(checked_hits > 50, "only {checked_hits} pixels hit: the case tests nothing");
+}
+
+fn pixel(images: &DepthImages, axis: usize, u: f64, v: f64) -> (f64, f64) {
+    let img = &images.images[axis];
+    let i = img.index(u.floor() as u32, v.floor() as u32);
+    (img.min[i] as f64, img.max[i] as f64)
+}
+
+/// Assert a computed depth is the exact value for radius δ, rounded outward within 2ρ.
+fn assert_depth(got: f64, exact_delta: f64, exact_wide: f64, what: &str) {
+    let (lo, hi) = (exact_delta.min(exact_wide), exact_delta.max(exact_wide));
+    assert!(
+        got >= lo - 1e-5 && got <= hi + 1e-5,
+        "{what}: got {got}, expected within [{lo}, {hi}]"
+    );
+}
+
+#[test]
+fn one_triangle_along_and_across_its_normal() {
+    // Right triangle (0,0)-(1,0)-(0,1) in the plane z = 0.3.
+    let g = generator(
+        vec![[0.0, 0.0, 0.3], [1.0, 0.0, 0.3], [0.0, 1.0, 0.3]],
+        vec![[0, 1, 2]],
+    );
+    let input = build(&g, &[DMat4::IDENTITY], 64);
+    let images = cpu::sweep(&input, &Silent).unwrap();
+    let grid = input.grid;
+    let (h, o) = (grid.h, grid.origin());
+    let d = input.params.delta / h;
+    let wide = d + 2.0 * input.rounding;
+    let gp = |p: DVec3| grid.to_grid(p);
+
+    // Along the normal (z image: columns x, rows y), a ray well inside: the prism caps.
+    let c = gp(DVec3::new(0.25, 0.25, 0.3));
+    let (z0, z1) = pixel(&images, 2, c.x, c.y);
+    assert_depth(z0, c.z - d, c.z - wide, "prism entry");
+    assert_depth(z1, c.z + d, c.z + wide, "prism exit");
+
+    // Across the normal (x image: columns z, rows y): rays parallel to the plane at height dz.
+    let mut checked = 0;
+    for row in 0..grid.dims[1] {
+        for col in 0..grid.dims[2] {
+            let (zu, yv) = (col as f64 + 0.5, row as f64 + 0.5);
+            let y = o.y + yv * h;
+            let dz = (o.z + zu * h - 0.3) / h; // grid units
+            if !(0.2..0.8).contains(&y) || dz.abs() >= d {
+                continue;
+            }
+            let (x0, x1) = pixel(&images, 0, zu, yv);
+            let x_lo = -o.x / h; // the edge x = 0
+            let x_hi = (1.0 - y - o.x) / h; // the hypotenuse at this y
+            let s = |r: f64| (r * r - dz * dz).sqrt();
+            assert_depth(x0, x_lo - s(d), x_lo - s(wide), "cylinder entry (edge x = 0)");
+            assert_depth(x1, x_hi + 2f64.sqrt() * s(d), x_hi + 2f64.sqrt() * s(wide), "cylinder exit (hypotenuse)");
+            checked += 1;
+        }
+    }
+    assert!(checked > 20, "only {checked} across-normal rays checked");
+    check_against_oracle(&input, &images, &posed_grid_triangles(&g, &[DMat4::IDENTITY], &input));
+}
+
+#[test]
+fn degenerate_point_triangle_sweeps_a_ball() {
+    let p = [0.2f32, -0.1, 0.4];
+    let g = generator(vec![p, p, p], vec![[0, 1, 2]]);
+    // Zero extent: the tolerance sets the voxel size.
+    let input = job::build(
+        &g,
+        Path::new("t.glb"),
+        &trajectory(&[DMat4::IDENTITY]),
+        Path::new("t.csv"),
+        Accuracy::Tolerance(0.05),
+        Overrides::default(),
+    )
+    .unwrap();
+    let images = cpu::sweep(&input, &Silent).unwrap();
+    let c = input.grid.to_grid(DVec3::new(0.2, -0.1, 0.4).as_vec3().as_dvec3());
+    let d = input.params.delta / input.grid.h;
+    let wide = d + 2.0 * input.rounding;
+    let mut hits = 0;
+    for axis in 0..3 {
+        let img = &images.images[axis];
+        let (cu, rv) = (COLUMN_AXIS[axis], ROW_AXIS[axis]);
+        for rb in 0..img.height {
+            for col in 0..img.width {
+                let (u, v) = (col as f64 + 0.5, rb as f64 + 0.5);
+                let r2 = (u - c[cu]).powi(2) + (v - c[rv]).powi(2);
+                let i = img.index(col, rb);
+                if r2 < d * d {
+                    assert_depth(img.min[i] as f64, c[axis] - (d * d - r2).sqrt(), c[axis] - (wide * wide - r2).sqrt(), "ball entry");
+                    assert_depth(img.max[i] as f64, c[axis] + (d * d - r2).sqrt(), c[axis] + (wide * wide - r2).sqrt(), "ball exit");
+                    hits += 1;
+                } else if r2 > wide * wide {
+                    assert!(img.is_empty_at(i), "axis {axis} ({col},{rb}) outside the ball is not empty");
+                }
+            }
+        }
+    }
+    assert!(hits >= 3 * 9, "the ball covered only {hits} pixels");
+}
+
+/// The 12 triangles of the box [lo, hi], some wound inconsistently on purpose.
+fn box_mesh(lo: [f32; 3], hi: [f32; 3]) -> Generator {
+    let mut pos = Vec::new();
+    for k in 0..8 {
+        pos.push([
+            if k & 1 == 0 { lo[0] } else { hi[0] },
+            if k & 2 == 0 { lo[1] } else { hi[1] },
+            if k & 4 == 0 { lo[2] } else { hi[2] },
+        ]);
+    }
+    let quads = [[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]];
+    let mut tris = Vec::new();
+    for (i, q) in quads.iter().enumerate() {
+        tris.push([q[0], q[1], q[2]]);
+        if i % 2 == 0 {
+            tris.push([q[0], q[2], q[3]]);
+        } else {
+            tris.push([q[0], q[3], q[2]]);
+        }
+    }
+    generator(pos, tris)
+}
+
+#[test]
+fn closed_box_translated_along_a_line() {
+    let g = box_mesh([0.0, 0.0, 0.0], [0.2, 0.1, 0.15]);
+    let poses: Vec<DMat4> = (0..9)
+        .map(|k| DMat4::from_translation(DVec3::new(0.1 * k as f64, 0.05 * k as f64, 0.0)))
+        .collect();
+    let input = build(&g, &poses, 48);
+    let images = cpu::sweep(&input, &Silent).unwrap();
+    let grid = input.grid;
+    let d = input.params.delta / grid.h;
+    let wide = d + 2.0 * input.rounding;
+    // Analytic: along z, the ray at (x, y) meets each translated box's offset in
+    // [zlo - s, zhi + s] with s = sqrt(d² - r²), r the distance from (x, y) to the box's xy
+    // rectangle; the images hold the union over poses.
+    let img = &images.images[2];
+    let mut hits = 0;
+    for rb in 0..img.height {
+        for col in 0..img.width {
+            let (u, v) = (col as f64 + 0.5, rb as f64 + 0.5);
+            let (mut e0, mut e1, mut w0, mut w1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
+            for m in &poses {
+                let lo = grid.to_grid(m.transform_point3(DVec3::ZERO));
+                let hi = grid.to_grid(m.transform_point3(DVec3::new(0.2, 0.1, 0.15)));
+                let du = (lo.x - u).max(u - hi.x).max(0.0);
+                let dv = (lo.y - v).max(v - hi.y).max(0.0);
+                let r2 = du * du + dv * dv;
+                if r2 <= d * d {
+                    let s = (d * d - r2).sqrt();
+                    e0 = e0.min(lo.z - s);
+                    e1 = e1.max(hi.z + s);
+                }
+                if r2 <= wide * wide {
+                    let s = (wide * wide - r2).sqrt();
+                    w0 = w0.min(lo.z - s);
+                    w1 = w1.max(hi.z + s);
+                }
+            }
+            let i = img.index(col, rb);
+            if e0 <= e1 {
+                assert_depth(img.min[i] as f64, e0, w0, "translated box entry");
+                assert_depth(img.max[i] as f64, e1, w1, "translated box exit");
+                hits += 1;
+            } else if w0 > w1 {
+                assert!(img.is_empty_at(i));
+            }
+        }
+    }
+    assert!(hits > 200, "only {hits} pixels checked");
+    check_against_oracle(&input, &images, &posed_grid_triangles(&g, &poses, &input));
+}
+
+/// A tetrahedron, off-centre, for the rotation and randomized tests.
+fn tetrahedron(rng: &mut Rng, size: f64, centre: [f64; 3]) -> Generator {
+    let pos: Vec<[f32; 3]> = (0..4)
+        .map(|_| {
+            [
+                (centre[0] + rng.range(-size, size)) as f32,
+                (centre[1] + rng.range(-size, size)) as f32,
+                (centre[2] + rng.range(-size, size)) as f32,
+            ]
+        })
+        .collect();
+    generator(pos, vec![[0, 1, 2], [0, 3, 1], [1, 3, 2], [2, 3, 0]])
+}
+
+#[test]
+fn rotation_about_an_axis_matches_the_oracle() {
+    let mut rng = Rng(7);
+    let g = tetrahedron(&mut rng, 0.15, [0.6, 0.0, 0.1]);
+    let poses: Vec<DMat4> = (0..24)
+        .map(|k| DMat4::from_rotation_y(k as f64 * std::f64::consts::TAU / 24.0))
+        .collect();
+    let input = build(&g, &poses, 40);
+    let images = cpu::sweep(&input, &Silent).unwrap();
+    check_against_oracle(&input, &images, &posed_grid_triangles(&g, &poses, &input));
+}
+
+/// Random generator (a few triangles, some degenerate) and random affine trajectory.
+fn random_case(seed: u64) -> (Generator, Vec<DMat4>) {
+    let mut rng = Rng(seed * 0x9E37_79B9 + 1);
+    let mut positions = Vec::new();
+    let mut triangles = Vec::new();
+    for k in 0..(2 + rng.below(5)) as u32 {
+        let base = [rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0)];
+        let s = [0.01, 0.2, 0.8][rng.below(3) as usize];
+        for _ in 0..3 {
+            positions.push([
+                (base[0] + rng.range(-s, s)) as f32,
+                (base[1] + rng.range(-s, s)) as f32,
+                (base[2] + rng.range(-s, s)) as f32,
+            ]);
+        }
+        let t = [3 * k, 3 * k + 1, 3 * k + 2];
+        triangles.push(match rng.below(6) {
+            0 => [t[0], t[0], t[0]],
+            1 => [t[0], t[1], t[1]],
+            _ => t,
+        });
+    }
+    let poses = (0..(1 + rng.below(6)))
+        .map(|_| {
+            let axis = DVec3::new(rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(0.1, 1.0)).normalize();
+            let rot = DMat4::from_axis_angle(axis, rng.range(-3.0, 3.0));
+            let scale = DMat4::from_scale(DVec3::new(rng.range(0.5, 1.5), rng.range(0.5, 1.5), rng.range(0.5, 1.5)));
+            let t = DMat4::from_translation(DVec3::new(rng.range(-2.0, 2.0), rng.range(-2.0, 2.0), rng.range(-2.0, 2.0)));
+            t * rot * scale
+        })
+        .collect();
+    (generator(positions, triangles), poses)
+}
+
+#[test]
+fn random_sweeps_match_the_oracle() {
+    for seed in 0..6 {
+        let (g, poses) = random_case(seed);
+        let input = build(&g, &poses, 24 + 4 * seed as u32);
+        let images = cpu::sweep(&input, &Silent).unwrap();
+        check_against_oracle(&input, &images, &posed_grid_triangles(&g, &poses, &input));
+    }
+}
+
+/// The property: a point p of a posed triangle, seen by the pixel whose centre is
+/// nearest in the image plane (in-plane distance r <= √2/2 voxel), lies on a ray that passes
+/// within r of p, so the ray meets the ball B_δ(p) ⊂ O_δ(T) in p_a ± sqrt(δ² - r²).
+/// Hence D⁻ <= p_a - sqrt(δ² - r²) and D⁺ >= p_a + sqrt(δ² - r²), with the unrounded δ.
+fn check_samples(input: &SweepInput, images: &DepthImages, tris: &[[V3; 3]], rng: &mut Rng) -> usize {
+    let d = input.params.delta / input.grid.h;
+    let mut checked = 0;
+    for t in tris {
+        for k in 0..40 {
+            let (mut b1, mut b2) = (rng.f(), rng.f());
+            if b1 + b2 > 1.0 {
+                (b1, b2) = (1.0 - b1, 1.0 - b2);
+            }
+            if k < 3 {
+                (b1, b2) = [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0)][k];
+            }
+            let p: Vec<f64> = (0..3).map(|c| t[0][c] + b1 * (t[1][c] - t[0][c]) + b2 * (t[2][c] - t[0][c])).collect();
+            for img in &images.images {
+                let a = img.axis;
+                let (cu, rv) = (COLUMN_AXIS[a], ROW_AXIS[a]);
+                let (col, rb) = (p[cu].floor(), p[rv].floor());
+                let r2 = (p[cu] - col - 0.5).powi(2) + (p[rv] - rb - 0.5).powi(2);
+                let m = (d * d - r2).sqrt();
+                let i = img.index(col as u32, rb as u32);
+                assert!(
+                    (img.min[i] as f64) <= p[a] - m && (img.max[i] as f64) >= p[a] + m,
+                    "sample {p:?} axis {a}: [{}, {}] misses [{}, {}]",
+                    img.min[i],
+                    img.max[i],
+                    p[a] - m,
+                    p[a] + m
+                );
+                checked += 1;
+            }
+        }
+    }
+    checked
+}
+
+#[test]
+fn sampled_points_of_posed_triangles_are_inside_their_pixels() {
+    let mut checked = 0;
+    for seed in 100..140 {
+        let (g, poses) = random_case(seed);
+        let input = build(&g, &poses, 32 + seed as u32 % 64);
+        let images = cpu::sweep(&input, &Silent).unwrap();
+        let mut rng = Rng(seed);
+        checked += check_samples(&input, &images, &posed_grid_triangles(&g, &poses, &input), &mut rng);
+    }
+    assert!(checked > 10_000);
+}
+
+#[test]
+fn shader_validates_without_an_adapter() {
+    let module = naga::front::wgsl::parse_str(sweptvol::sweep::gpu::SHADER_SOURCE)
+        .unwrap_or_else(|e| panic!("sweep.wgsl: {}", e.emit_to_string(sweptvol::sweep::gpu::SHADER_SOURCE)));
+    naga::valid::Validator::new(naga::valid::ValidationFlags::all(), naga::valid::Capabilities::all())
+        .validate(&module)
+        .unwrap_or_else(|e| panic!("sweep.wgsl: {}", e.emit_to_string(sweptvol::sweep::gpu::SHADER_SOURCE)));
+}
+
+/// A GPU adapter for the tests, or a loud skip. With SWEPTVOL_REQUIRE_GPU=1 (CI, which installs
+/// lavapipe) a missing adapter fails the test instead.
+fn test_gpu() -> Option<Gpu> {
+    match Gpu::acquire(true).expect("GPU device") {
+        Some(g) => {
+            eprintln!("GPU tests run on {}", g.describe());
+            Some(g)
+        }
+        None if std::env::var("SWEPTVOL_REQUIRE_GPU").as_deref() == Ok("1") => {
+            panic!("SWEPTVOL_REQUIRE_GPU=1 but no GPU adapter found (install mesa-vulkan-drivers libvulkan1)")
+        }
+        None => {
+            eprintln!("\n*** SKIPPED: no GPU adapter (Vulkan/Metal/DX12) found; the GPU path was NOT tested. Install lavapipe (mesa-vulkan-drivers libvulkan1). ***\n");
+            None
+        }
+    }
+}
+
+/// GPU and CPU agree: both empty, or both hit with every depth within the rounding term ρ of
+/// each other (each is within ρ of exact); a pixel hit by one only must be a grazing hit.
+fn assert_same(gpu: &DepthImages, cpu: &DepthImages, rho: f64, radius: f64) -> usize {
+    let mut hits = 0;
+    for (g, c) in gpu.images.iter().zip(&cpu.images) {
+        for i in 0..g.min.len() {
+            match (g.is_empty_at(i), c.is_empty_at(i)) {
+                (true, true) => {}
+                (false, false) => {
+                    hits += 1;
+                    let d0 = (g.min[i] - c.min[i]).abs() as f64;
+                    let d1 = (g.max[i] - c.max[i]).abs() as f64;
+                    assert!(d0 <= rho && d1 <= rho, "axis {} pixel {i}: gpu [{}, {}] cpu [{}, {}]", g.axis, g.min[i], g.max[i], c.min[i], c.max[i]);
+                }
+                (ge, _) => {
+                    let (lo, hi) = if ge { (c.min[i], c.max[i]) } else { (g.min[i], g.max[i]) };
+                    let graze = 2.0 * (2.0 * radius * rho).sqrt();
+                    assert!(((hi - lo) as f64) <= graze, "axis {} pixel {i}: hit [{lo}, {hi}] by one backend only", g.axis);
+                }
+            }
+        }
+    }
+    hits
+}
+
+#[test]
+fn gpu_matches_cpu_twin_on_random_sweeps() {
+    let Some(gpu) = test_gpu() else { return };
+    let mut hits = 0;
+    for seed in 200..212 {
+        let (g, poses) = random_case(seed);
+        let input = build(&g, &poses, 40 + 8 * (seed as u32 % 5));
+        let c = cpu::sweep(&input, &Silent).unwrap();
+        let gi = gpu.sweep(&input, &Silent).unwrap();
+        hits += assert_same(&gi, &c, input.rounding, input.radius as f64);
+        let mut rng = Rng(seed);
+        check_samples(&input, &gi, &posed_grid_triangles(&g, &poses, &input), &mut rng);
+    }
+    // A larger case: many poses of a closed mesh, several dispatches' worth of work.
+    let mut rng = Rng(99);
+    let g = tetrahedron(&mut rng, 0.3, [0.2, 0.1, 0.0]);
+    let poses: Vec<DMat4> = (0..500)
+        .map(|k| {
+            let a = k as f64 * 0.0125;
+            DMat4::from_translation(DVec3::new(a.cos(), a.sin(), 0.3 * a)) * DMat4::from_rotation_z(a)
+        })
+        .collect();
+    let input = build(&g, &poses, 128);
+    let c = cpu::sweep(&input, &Silent).unwrap();
+    let gi = gpu.sweep(&input, &Silent).unwrap();
+    hits += assert_same(&gi, &c, input.rounding, input.radius as f64);
+    assert!(hits > 5000, "only {hits} pixels compared");
+}
