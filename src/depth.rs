@@ -50,11 +50,14 @@ impl DepthImage {
     }
 
     pub fn is_empty_at(&self, i: usize) -> bool {
-        !(self.min[i] <= self.max[i])
+        let (lo, hi) = (self.min[i], self.max[i]);
+        lo.is_nan() || hi.is_nan() || lo > hi
     }
 
     pub fn hit_count(&self) -> usize {
-        (0..self.min.len()).filter(|&i| !self.is_empty_at(i)).count()
+        (0..self.min.len())
+            .filter(|&i| !self.is_empty_at(i))
+            .count()
     }
 }
 

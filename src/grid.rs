@@ -118,7 +118,9 @@ pub fn fit_grid(
         }
         Accuracy::Tolerance(t) => {
             if !(t.is_finite() && t > 0.0) {
-                return Err(format!("tolerance {t} must be a positive number of world units"));
+                return Err(format!(
+                    "tolerance {t} must be a positive number of world units"
+                ));
             }
             t / K_GLOBAL
         }
@@ -157,7 +159,9 @@ fn check_params(p: &Params, h: f64, overrides: Overrides) -> Result<(), String> 
     for (name, v) in [("delta", overrides.delta), ("epsilon", overrides.epsilon)] {
         if let Some(v) = v {
             if !(v.is_finite() && v > 0.0) {
-                return Err(format!("--{name} {v} must be a positive number of world units"));
+                return Err(format!(
+                    "--{name} {v} must be a positive number of world units"
+                ));
             }
         }
     }
@@ -168,7 +172,8 @@ fn check_params(p: &Params, h: f64, overrides: Overrides) -> Result<(), String> 
             K_EPSILON * h
         ));
     }
-    if (overrides.delta.is_some() || overrides.epsilon.is_some()) && p.delta <= p.epsilon + p.sigma {
+    if (overrides.delta.is_some() || overrides.epsilon.is_some()) && p.delta <= p.epsilon + p.sigma
+    {
         return Err(format!(
             "δ = {} must exceed ε + σ = {} + {} (h = {h}); raise --delta or lower --epsilon",
             p.delta, p.epsilon, p.sigma
@@ -227,8 +232,12 @@ mod tests {
                 },
             )
         };
-        assert!(fit(Some(0.001), None).unwrap_err().contains("must exceed ε + σ"));
-        assert!(fit(None, Some(0.0001)).unwrap_err().contains("half a voxel diagonal"));
+        assert!(fit(Some(0.001), None)
+            .unwrap_err()
+            .contains("must exceed ε + σ"));
+        assert!(fit(None, Some(0.0001))
+            .unwrap_err()
+            .contains("half a voxel diagonal"));
         assert!(fit(Some(0.1), Some(0.02)).is_ok());
         assert!(fit(Some(-1.0), None).unwrap_err().contains("positive"));
     }

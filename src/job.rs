@@ -109,7 +109,10 @@ fn assign_poses(
             _ => {
                 return Err(InputError::new(
                     csv_path,
-                    format!("node name {name:?} is ambiguous: {} mesh nodes carry it", hits.len()),
+                    format!(
+                        "node name {name:?} is ambiguous: {} mesh nodes carry it",
+                        hits.len()
+                    ),
                     "give the glTF nodes unique names",
                 )
                 .at_line(pose.line)
@@ -172,8 +175,8 @@ pub fn build(
     let assigned = assign_poses(generator, trajectory, csv_path)?;
     let (lo, hi) = posed_bounds(generator, &assigned);
     let (grid, params) = fit_grid(lo, hi, accuracy, overrides).map_err(anyhow::Error::msg)?;
-    let to_grid = DMat4::from_scale(DVec3::splat(1.0 / grid.h))
-        * DMat4::from_translation(-grid.origin());
+    let to_grid =
+        DMat4::from_scale(DVec3::splat(1.0 / grid.h)) * DMat4::from_translation(-grid.origin());
 
     let mut triangles = Vec::with_capacity(generator.triangle_count());
     let mut poses = Vec::new();

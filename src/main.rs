@@ -14,7 +14,11 @@ use sweptvol::pipeline::{self, Backend, BackendChoice, RunOptions};
 use sweptvol::sweep::Observer;
 
 #[derive(Parser)]
-#[command(name = "sweptvol", version, about = "Conservative swept volumes of triangle meshes")]
+#[command(
+    name = "sweptvol",
+    version,
+    about = "Conservative swept volumes of triangle meshes"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -99,6 +103,8 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
         },
         overwrite: args.overwrite,
     };
+    // Inputs first: a bad file is reported before any GPU start-up.
+    let job = pipeline::prepare(&opts)?;
     let backend = Backend::acquire(args.backend)?;
     if let Backend::Cpu { reason } = &backend {
         if args.backend == BackendChoice::Auto {
@@ -109,15 +115,17 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
         ProgressBar::hidden()
     } else {
         ProgressBar::new(0).with_style(
-            ProgressStyle::with_template("sweeping {bar:40} {pos}/{len} poses, {elapsed} elapsed, ETA {eta}")
-                .expect("progress template"),
+            ProgressStyle::with_template(
+                "sweeping {bar:40} {pos}/{len} poses, {elapsed} elapsed, ETA {eta}",
+            )
+            .expect("progress template"),
         )
     };
     let observer = Bar {
         bar,
         poses: AtomicU64::new(0),
     };
-    let report = pipeline::run(&opts, &backend, &observer)?;
+    let report = pipeline::execute(&job, &backend, &observer)?;
     observer.bar.finish_and_clear();
     let t = &report.timings;
     tracing::info!(

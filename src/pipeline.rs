@@ -29,7 +29,7 @@ pub enum BackendChoice {
 
 /// A resolved backend: a GPU device (acquired once, reusable) or the CPU twin.
 pub enum Backend {
-    Gpu(Gpu),
+    Gpu(Box<Gpu>),
     Cpu { reason: String },
 }
 
@@ -41,13 +41,13 @@ impl Backend {
                 reason: "--backend cpu".into(),
             }),
             BackendChoice::Gpu => match Gpu::acquire(true)? {
-                Some(g) => Ok(Backend::Gpu(g)),
+                Some(g) => Ok(Backend::Gpu(Box::new(g))),
                 None => bail!(
                     "--backend gpu: no Vulkan/Metal/DX12 adapter with compute shaders found; install a driver (on Debian, lavapipe: apt-get install mesa-vulkan-drivers libvulkan1) or use --backend cpu"
                 ),
             },
             BackendChoice::Auto => match Gpu::acquire(false)? {
-                Some(g) => Ok(Backend::Gpu(g)),
+                Some(g) => Ok(Backend::Gpu(Box::new(g))),
                 None => Ok(Backend::Cpu {
                     reason: "no hardware GPU adapter found: falling back to the CPU twin".into(),
                 }),
@@ -58,14 +58,17 @@ impl Backend {
     pub fn describe(&self) -> String {
         match self {
             Backend::Gpu(g) => format!("gpu: {}", g.describe()),
-            Backend::Cpu { reason } => format!(
-                "cpu: {} threads ({reason})",
-                rayon::current_num_threads()
-            ),
+            Backend::Cpu { reason } => {
+                format!("cpu: {} threads ({reason})", rayon::current_num_threads())
+            }
         }
     }
 
-    pub fn sweep(&self, input: &SweepInput, observer: &dyn Observer) -> anyhow::Result<DepthImages> {
+    pub fn sweep(
+        &self,
+        input: &SweepInput,
+        observer: &dyn Observer,
+    ) -> anyhow::Result<DepthImages> {
         match self {
             Backend::Gpu(g) => g.sweep(input, observer),
             Backend::Cpu { .. } => Ok(cpu::sweep(input, observer)?),
@@ -172,7 +175,10 @@ pub fn output_stem(opts: &RunOptions) -> anyhow::Result<String> {
         bail!("--name {stem:?} must be a plain file name without slashes or a leading dot");
     }
     if opts.name.is_none() && stem.is_empty() {
-        bail!("cannot derive an output name from {}; pass --name", opts.trajectory.display());
+        bail!(
+            "cannot derive an output name from {}; pass --name",
+            opts.trajectory.display()
+        );
     }
     Ok(stem)
 }
@@ -191,16 +197,30 @@ pub fn output_paths(opts: &RunOptions) -> anyhow::Result<Vec<PathBuf>> {
     let mut out = Vec::new();
     for axis in 0..3 {
         for side in [Side::Min, Side::Max] {
-            out.push(opts.out_dir.join(exr_depth::depth_file_name(&stem, axis, side)));
+            out.push(
+                opts.out_dir
+                    .join(exr_depth::depth_file_name(&stem, axis, side)),
+            );
         }
     }
     out.push(opts.out_dir.join(with_stem(&stem, "report.json")));
     Ok(out)
 }
 
-/// Run one job: read, sweep, write. Nothing is written if any input is bad.
-pub fn run(opts: &RunOptions, backend: &Backend, observer: &dyn Observer) -> anyhow::Result<Report> {
-    let t_start = Instant::now();
+/// A job whose inputs are read and checked and whose sweep input is built: everything that can
+/// fail because of the user's files has failed by now, and nothing has been written.
+pub struct Prepared {
+    pub opts: RunOptions,
+    pub outputs: Vec<PathBuf>,
+    pub input: SweepInput,
+    pub warnings: Vec<String>,
+    read_secs: f64,
+    setup_secs: f64,
+}
+
+/// Read and check the inputs and build the sweep input. Writes nothing.
+pub fn prepare(opts: &RunOptions) -> anyhow::Result<Prepared> {
+    let t0 = Instant::now();
     let outputs = output_paths(opts)?;
     if !opts.overwrite {
         if let Some(existing) = outputs.iter().find(|p| p.exists()) {
@@ -210,14 +230,12 @@ pub fn run(opts: &RunOptions, backend: &Backend, observer: &dyn Observer) -> any
             );
         }
     }
-
     let generator = gltf_in::read_generator(&opts.generator)?;
     let traj = trajectory::read_trajectory(&opts.trajectory)?;
     for w in &generator.warnings {
         tracing::warn!("{}: {w}", opts.generator.display());
     }
-    let t_read = Instant::now();
-
+    let t1 = Instant::now();
     let input = job::build(
         &generator,
         &opts.generator,
@@ -226,6 +244,23 @@ pub fn run(opts: &RunOptions, backend: &Backend, observer: &dyn Observer) -> any
         opts.accuracy,
         opts.overrides,
     )?;
+    Ok(Prepared {
+        opts: opts.clone(),
+        outputs,
+        input,
+        warnings: generator.warnings,
+        read_secs: (t1 - t0).as_secs_f64(),
+        setup_secs: t1.elapsed().as_secs_f64(),
+    })
+}
+
+/// Sweep a prepared job and write its outputs.
+pub fn execute(
+    job: &Prepared,
+    backend: &Backend,
+    observer: &dyn Observer,
+) -> anyhow::Result<Report> {
+    let (opts, input) = (&job.opts, &job.input);
     let t_setup = Instant::now();
     tracing::info!(
         "grid {}x{}x{} voxels of {:.6} (n = {}); {} posed triangles on {}",
@@ -237,9 +272,8 @@ pub fn run(opts: &RunOptions, backend: &Backend, observer: &dyn Observer) -> any
         input.posed_triangles(),
         backend.describe()
     );
-
-    observer.begin(crate::sweep::total_poses(&input), input.posed_triangles());
-    let images = backend.sweep(&input, observer)?;
+    observer.begin(crate::sweep::total_poses(input), input.posed_triangles());
+    let images = backend.sweep(input, observer)?;
     let t_sweep = Instant::now();
 
     let h = input.grid.h;
@@ -247,8 +281,12 @@ pub fn run(opts: &RunOptions, backend: &Backend, observer: &dyn Observer) -> any
         delta: input.params.delta,
         rounding: input.rounding * h,
     };
-    std::fs::create_dir_all(&opts.out_dir)
-        .with_context(|| format!("could not create the output folder {}", opts.out_dir.display()))?;
+    std::fs::create_dir_all(&opts.out_dir).with_context(|| {
+        format!(
+            "could not create the output folder {}",
+            opts.out_dir.display()
+        )
+    })?;
     let stem = output_stem(opts)?;
     let files = exr_depth::write_all(&opts.out_dir, &stem, &images, &extra)?;
     let t_write = Instant::now();
@@ -283,19 +321,19 @@ pub fn run(opts: &RunOptions, backend: &Backend, observer: &dyn Observer) -> any
         backend: backend.describe(),
         counts: CountsReport {
             triangles: input.triangles.len() as u64,
-            poses: input.parts.iter().map(|p| p.pose_count as u64).sum(),
+            poses: crate::sweep::total_poses(input),
             posed_triangles: input.posed_triangles(),
             hit_pixels: images.images.clone().map(|i| i.hit_count() as u64),
         },
         timings: TimingsReport {
-            read_inputs: secs(t_start, t_read),
-            setup: secs(t_read, t_setup),
+            read_inputs: job.read_secs,
+            setup: job.setup_secs,
             sweep: sweep_secs,
             write_outputs: secs(t_sweep, t_write),
-            total: secs(t_start, Instant::now()),
+            total: job.read_secs + job.setup_secs + secs(t_setup, Instant::now()),
             posed_triangles_per_second: input.posed_triangles() as f64 / sweep_secs.max(1e-9),
         },
-        outputs: outputs.clone(),
+        outputs: job.outputs.clone(),
         depth_images: DepthImagesReport {
             layout: format!(
                 "one EXR per axis and side; channel Z = world distance from the camera plane (the grid face the image is named after) along the view direction, rounded toward the camera; channel Y = 1 - Z / grid extent for viewers; columns along {} and rows (top first) along {} for axes x, y, z",
@@ -305,9 +343,9 @@ pub fn run(opts: &RunOptions, backend: &Backend, observer: &dyn Observer) -> any
             empty_pixels: "Z = +inf, Y = 0 (no offset on that ray)".into(),
             files,
         },
-        warnings: generator.warnings.clone(),
+        warnings: job.warnings.clone(),
     };
     let json = serde_json::to_vec_pretty(&report)?;
-    atomic::write_atomic(outputs.last().expect("report path"), &json)?;
+    atomic::write_atomic(job.outputs.last().expect("report path"), &json)?;
     Ok(report)
 }

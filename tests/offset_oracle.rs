@@ -26,8 +26,8 @@ fn random_case(rng: &mut Rng, d: f64, far: f64) -> [V3; 3] {
     };
     let mut t = [pt(rng), pt(rng), pt(rng)];
     match rng.below(7) {
-        0 => t[1] = t[0],                      // segment
-        1 => t = [t[0]; 3],                    // point
+        0 => t[1] = t[0],   // segment
+        1 => t = [t[0]; 3], // point
         2 => {
             // edge-on: all three vertices in a plane containing the ray direction
             let ang = rng.range(0.0, 6.3);
@@ -101,9 +101,15 @@ fn ray_cast_contains_exact_offset_and_stays_tight() {
             );
         }
     }
-    println!("{hits} hits; worst f32 error used {:.1}% of the rounding budget", 100.0 * worst_fraction);
+    println!(
+        "{hits} hits; worst f32 error used {:.1}% of the rounding budget",
+        100.0 * worst_fraction
+    );
     assert!(hits > 5000, "too few hits ({hits}) to mean anything");
-    assert!(worst_fraction < 0.25, "f32 error used {worst_fraction} of the budget: the budget is too thin");
+    assert!(
+        worst_fraction < 0.25,
+        "f32 error used {worst_fraction} of the budget: the budget is too thin"
+    );
 }
 
 /// The paper's tight δ in voxels.

@@ -84,8 +84,12 @@ fn check_against_oracle(input: &SweepInput, images: &DepthImages, tris: &[[V3; 3
             for col in 0..img.width {
                 let (u, v) = (col as f64 + 0.5, (img.height - 1 - row) as f64 + 0.5);
                 let near = |t: &&[V3; 3], r: f64| {
-                    let (lu, hu) = t.iter().fold((f64::MAX, f64::MIN), |m, p| (m.0.min(p[cu]), m.1.max(p[cu])));
-                    let (lv, hv) = t.iter().fold((f64::MAX, f64::MIN), |m, p| (m.0.min(p[rv]), m.1.max(p[rv])));
+                    let (lu, hu) = t.iter().fold((f64::MAX, f64::MIN), |m, p| {
+                        (m.0.min(p[cu]), m.1.max(p[cu]))
+                    });
+                    let (lv, hv) = t.iter().fold((f64::MAX, f64::MIN), |m, p| {
+                        (m.0.min(p[rv]), m.1.max(p[rv]))
+                    });
                     u >= lu - r && u <= hu + r && v >= lv - r && v <= hv + r
                 };
                 let union = |r: f64| {
@@ -106,8 +110,9 @@ fn check_against_oracle(input: &SweepInput, images: &DepthImages, tris: &[[V3; 3
                     );
                 }
                 if !img.is_empty_at(i) {
-                    let (w0, w1) = union(d + 2.0 * rho)
-                        .unwrap_or_else(|| panic!("axis {a} pixel ({col},{row}) hit where δ+2ρ misses"));
+                    let (w0, w1) = union(d + 2.0 * rho).unwrap_or_else(|| {
+                        panic!("axis {a} pixel ({col},{row}) hit where δ+2ρ misses")
+                    });
                     assert!(
                         got0 >= w0 - 1e-6 && got1 <= w1 + 1e-6,
                         "axis {a} pixel ({col},{row}): [{got0}, {got1}] exceeds [{w0}, {w1}]"
@@ -116,7 +121,10 @@ fn check_against_oracle(input: &SweepInput, images: &DepthImages, tris: &[[V3; 3
             }
         }
     }
-    assert!(checked_hits > 50, "only {checked_hits} pixels hit: the case tests nothing");
+    assert!(
+        checked_hits > 50,
+        "only {checked_hits} pixels hit: the case tests nothing"
+    );
 }
 
 fn pixel(images: &DepthImages, axis: usize, u: f64, v: f64) -> (f64, f64) {
@@ -169,13 +177,27 @@ fn one_triangle_along_and_across_its_normal() {
             let x_lo = -o.x / h; // the edge x = 0
             let x_hi = (1.0 - y - o.x) / h; // the hypotenuse at this y
             let s = |r: f64| (r * r - dz * dz).sqrt();
-            assert_depth(x0, x_lo - s(d), x_lo - s(wide), "cylinder entry (edge x = 0)");
-            assert_depth(x1, x_hi + 2f64.sqrt() * s(d), x_hi + 2f64.sqrt() * s(wide), "cylinder exit (hypotenuse)");
+            assert_depth(
+                x0,
+                x_lo - s(d),
+                x_lo - s(wide),
+                "cylinder entry (edge x = 0)",
+            );
+            assert_depth(
+                x1,
+                x_hi + 2f64.sqrt() * s(d),
+                x_hi + 2f64.sqrt() * s(wide),
+                "cylinder exit (hypotenuse)",
+            );
             checked += 1;
         }
     }
     assert!(checked > 20, "only {checked} across-normal rays checked");
-    check_against_oracle(&input, &images, &posed_grid_triangles(&g, &[DMat4::IDENTITY], &input));
+    check_against_oracle(
+        &input,
+        &images,
+        &posed_grid_triangles(&g, &[DMat4::IDENTITY], &input),
+    );
 }
 
 #[test]
@@ -193,7 +215,9 @@ fn degenerate_point_triangle_sweeps_a_ball() {
     )
     .unwrap();
     let images = cpu::sweep(&input, &Silent).unwrap();
-    let c = input.grid.to_grid(DVec3::new(0.2, -0.1, 0.4).as_vec3().as_dvec3());
+    let c = input
+        .grid
+        .to_grid(DVec3::new(0.2, -0.1, 0.4).as_vec3().as_dvec3());
     let d = input.params.delta / input.grid.h;
     let wide = d + 2.0 * input.rounding;
     let mut hits = 0;
@@ -206,11 +230,24 @@ fn degenerate_point_triangle_sweeps_a_ball() {
                 let r2 = (u - c[cu]).powi(2) + (v - c[rv]).powi(2);
                 let i = img.index(col, rb);
                 if r2 < d * d {
-                    assert_depth(img.min[i] as f64, c[axis] - (d * d - r2).sqrt(), c[axis] - (wide * wide - r2).sqrt(), "ball entry");
-                    assert_depth(img.max[i] as f64, c[axis] + (d * d - r2).sqrt(), c[axis] + (wide * wide - r2).sqrt(), "ball exit");
+                    assert_depth(
+                        img.min[i] as f64,
+                        c[axis] - (d * d - r2).sqrt(),
+                        c[axis] - (wide * wide - r2).sqrt(),
+                        "ball entry",
+                    );
+                    assert_depth(
+                        img.max[i] as f64,
+                        c[axis] + (d * d - r2).sqrt(),
+                        c[axis] + (wide * wide - r2).sqrt(),
+                        "ball exit",
+                    );
                     hits += 1;
                 } else if r2 > wide * wide {
-                    assert!(img.is_empty_at(i), "axis {axis} ({col},{rb}) outside the ball is not empty");
+                    assert!(
+                        img.is_empty_at(i),
+                        "axis {axis} ({col},{rb}) outside the ball is not empty"
+                    );
                 }
             }
         }
@@ -228,7 +265,14 @@ fn box_mesh(lo: [f32; 3], hi: [f32; 3]) -> Generator {
             if k & 4 == 0 { lo[2] } else { hi[2] },
         ]);
     }
-    let quads = [[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]];
+    let quads = [
+        [0, 1, 3, 2],
+        [4, 6, 7, 5],
+        [0, 4, 5, 1],
+        [2, 3, 7, 6],
+        [0, 2, 6, 4],
+        [1, 5, 7, 3],
+    ];
     let mut tris = Vec::new();
     for (i, q) in quads.iter().enumerate() {
         tris.push([q[0], q[1], q[2]]);
@@ -324,7 +368,11 @@ fn random_case(seed: u64) -> (Generator, Vec<DMat4>) {
     let mut positions = Vec::new();
     let mut triangles = Vec::new();
     for k in 0..(2 + rng.below(5)) as u32 {
-        let base = [rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0)];
+        let base = [
+            rng.range(-1.0, 1.0),
+            rng.range(-1.0, 1.0),
+            rng.range(-1.0, 1.0),
+        ];
         let s = [0.01, 0.2, 0.8][rng.below(3) as usize];
         for _ in 0..3 {
             positions.push([
@@ -342,10 +390,23 @@ fn random_case(seed: u64) -> (Generator, Vec<DMat4>) {
     }
     let poses = (0..(1 + rng.below(6)))
         .map(|_| {
-            let axis = DVec3::new(rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(0.1, 1.0)).normalize();
+            let axis = DVec3::new(
+                rng.range(-1.0, 1.0),
+                rng.range(-1.0, 1.0),
+                rng.range(0.1, 1.0),
+            )
+            .normalize();
             let rot = DMat4::from_axis_angle(axis, rng.range(-3.0, 3.0));
-            let scale = DMat4::from_scale(DVec3::new(rng.range(0.5, 1.5), rng.range(0.5, 1.5), rng.range(0.5, 1.5)));
-            let t = DMat4::from_translation(DVec3::new(rng.range(-2.0, 2.0), rng.range(-2.0, 2.0), rng.range(-2.0, 2.0)));
+            let scale = DMat4::from_scale(DVec3::new(
+                rng.range(0.5, 1.5),
+                rng.range(0.5, 1.5),
+                rng.range(0.5, 1.5),
+            ));
+            let t = DMat4::from_translation(DVec3::new(
+                rng.range(-2.0, 2.0),
+                rng.range(-2.0, 2.0),
+                rng.range(-2.0, 2.0),
+            ));
             t * rot * scale
         })
         .collect();
@@ -366,7 +427,12 @@ fn random_sweeps_match_the_oracle() {
 /// nearest in the image plane (in-plane distance r <= √2/2 voxel), lies on a ray that passes
 /// within r of p, so the ray meets the ball B_δ(p) ⊂ O_δ(T) in p_a ± sqrt(δ² - r²).
 /// Hence D⁻ <= p_a - sqrt(δ² - r²) and D⁺ >= p_a + sqrt(δ² - r²), with the unrounded δ.
-fn check_samples(input: &SweepInput, images: &DepthImages, tris: &[[V3; 3]], rng: &mut Rng) -> usize {
+fn check_samples(
+    input: &SweepInput,
+    images: &DepthImages,
+    tris: &[[V3; 3]],
+    rng: &mut Rng,
+) -> usize {
     let d = input.params.delta / input.grid.h;
     let mut checked = 0;
     for t in tris {
@@ -378,7 +444,9 @@ fn check_samples(input: &SweepInput, images: &DepthImages, tris: &[[V3; 3]], rng
             if k < 3 {
                 (b1, b2) = [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0)][k];
             }
-            let p: Vec<f64> = (0..3).map(|c| t[0][c] + b1 * (t[1][c] - t[0][c]) + b2 * (t[2][c] - t[0][c])).collect();
+            let p: Vec<f64> = (0..3)
+                .map(|c| t[0][c] + b1 * (t[1][c] - t[0][c]) + b2 * (t[2][c] - t[0][c]))
+                .collect();
             for img in &images.images {
                 let a = img.axis;
                 let (cu, rv) = (COLUMN_AXIS[a], ROW_AXIS[a]);
@@ -409,18 +477,36 @@ fn sampled_points_of_posed_triangles_are_inside_their_pixels() {
         let input = build(&g, &poses, 32 + seed as u32 % 64);
         let images = cpu::sweep(&input, &Silent).unwrap();
         let mut rng = Rng(seed);
-        checked += check_samples(&input, &images, &posed_grid_triangles(&g, &poses, &input), &mut rng);
+        checked += check_samples(
+            &input,
+            &images,
+            &posed_grid_triangles(&g, &poses, &input),
+            &mut rng,
+        );
     }
     assert!(checked > 10_000);
 }
 
 #[test]
 fn shader_validates_without_an_adapter() {
-    let module = naga::front::wgsl::parse_str(sweptvol::sweep::gpu::SHADER_SOURCE)
-        .unwrap_or_else(|e| panic!("sweep.wgsl: {}", e.emit_to_string(sweptvol::sweep::gpu::SHADER_SOURCE)));
-    naga::valid::Validator::new(naga::valid::ValidationFlags::all(), naga::valid::Capabilities::all())
-        .validate(&module)
-        .unwrap_or_else(|e| panic!("sweep.wgsl: {}", e.emit_to_string(sweptvol::sweep::gpu::SHADER_SOURCE)));
+    let module =
+        naga::front::wgsl::parse_str(sweptvol::sweep::gpu::SHADER_SOURCE).unwrap_or_else(|e| {
+            panic!(
+                "sweep.wgsl: {}",
+                e.emit_to_string(sweptvol::sweep::gpu::SHADER_SOURCE)
+            )
+        });
+    naga::valid::Validator::new(
+        naga::valid::ValidationFlags::all(),
+        naga::valid::Capabilities::all(),
+    )
+    .validate(&module)
+    .unwrap_or_else(|e| {
+        panic!(
+            "sweep.wgsl: {}",
+            e.emit_to_string(sweptvol::sweep::gpu::SHADER_SOURCE)
+        )
+    });
 }
 
 /// A GPU adapter for the tests, or a loud skip. With SWEPTVOL_REQUIRE_GPU=1 (CI, which installs
@@ -453,12 +539,28 @@ fn assert_same(gpu: &DepthImages, cpu: &DepthImages, rho: f64, radius: f64) -> u
                     hits += 1;
                     let d0 = (g.min[i] - c.min[i]).abs() as f64;
                     let d1 = (g.max[i] - c.max[i]).abs() as f64;
-                    assert!(d0 <= rho && d1 <= rho, "axis {} pixel {i}: gpu [{}, {}] cpu [{}, {}]", g.axis, g.min[i], g.max[i], c.min[i], c.max[i]);
+                    assert!(
+                        d0 <= rho && d1 <= rho,
+                        "axis {} pixel {i}: gpu [{}, {}] cpu [{}, {}]",
+                        g.axis,
+                        g.min[i],
+                        g.max[i],
+                        c.min[i],
+                        c.max[i]
+                    );
                 }
                 (ge, _) => {
-                    let (lo, hi) = if ge { (c.min[i], c.max[i]) } else { (g.min[i], g.max[i]) };
+                    let (lo, hi) = if ge {
+                        (c.min[i], c.max[i])
+                    } else {
+                        (g.min[i], g.max[i])
+                    };
                     let graze = 2.0 * (2.0 * radius * rho).sqrt();
-                    assert!(((hi - lo) as f64) <= graze, "axis {} pixel {i}: hit [{lo}, {hi}] by one backend only", g.axis);
+                    assert!(
+                        ((hi - lo) as f64) <= graze,
+                        "axis {} pixel {i}: hit [{lo}, {hi}] by one backend only",
+                        g.axis
+                    );
                 }
             }
         }
@@ -477,7 +579,12 @@ fn gpu_matches_cpu_twin_on_random_sweeps() {
         let gi = gpu.sweep(&input, &Silent).unwrap();
         hits += assert_same(&gi, &c, input.rounding, input.radius as f64);
         let mut rng = Rng(seed);
-        check_samples(&input, &gi, &posed_grid_triangles(&g, &poses, &input), &mut rng);
+        check_samples(
+            &input,
+            &gi,
+            &posed_grid_triangles(&g, &poses, &input),
+            &mut rng,
+        );
     }
     // A larger case: many poses of a closed mesh, several dispatches' worth of work.
     let mut rng = Rng(99);
@@ -485,7 +592,8 @@ fn gpu_matches_cpu_twin_on_random_sweeps() {
     let poses: Vec<DMat4> = (0..500)
         .map(|k| {
             let a = k as f64 * 0.0125;
-            DMat4::from_translation(DVec3::new(a.cos(), a.sin(), 0.3 * a)) * DMat4::from_rotation_z(a)
+            DMat4::from_translation(DVec3::new(a.cos(), a.sin(), 0.3 * a))
+                * DMat4::from_rotation_z(a)
         })
         .collect();
     let input = build(&g, &poses, 128);

@@ -9,7 +9,10 @@ use anyhow::Context;
 /// A temporary sibling name for `path`: hidden, unique to this process, same folder (so the
 /// rename is atomic on one filesystem).
 pub fn temp_sibling(path: &Path) -> PathBuf {
-    let name = path.file_name().map(|n| n.to_string_lossy()).unwrap_or_default();
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy())
+        .unwrap_or_default();
     path.with_file_name(format!(".{name}.tmp-{}", std::process::id()))
 }
 

@@ -21,10 +21,10 @@ pub fn sweep(input: &SweepInput, observer: &dyn Observer) -> Result<DepthImages,
     let total = input.posed_triangles();
     let mut done = 0u64;
     for part in &input.parts {
-        let tris = &input.triangles
-            [part.tri_start as usize..(part.tri_start + part.tri_count) as usize];
-        let poses = &input.poses
-            [part.pose_start as usize..(part.pose_start + part.pose_count) as usize];
+        let tris =
+            &input.triangles[part.tri_start as usize..(part.tri_start + part.tri_count) as usize];
+        let poses =
+            &input.poses[part.pose_start as usize..(part.pose_start + part.pose_count) as usize];
         // Batches of poses so that progress and cancellation come every ~4M posed triangles.
         let batch = (4_000_000 / tris.len().max(1)).clamp(1, 4096);
         for pose_batch in poses.chunks(batch) {
@@ -37,8 +37,8 @@ pub fn sweep(input: &SweepInput, observer: &dyn Observer) -> Result<DepthImages,
                 .for_each(|(m, chunk)| {
                     for t in chunk {
                         let posed = pose_triangle(m, t);
-                        for axis in 0..3 {
-                            splat(&posed, input.radius, axis, dims, &images[axis]);
+                        for (axis, image) in images.iter().enumerate() {
+                            splat(&posed, input.radius, axis, dims, image);
                         }
                     }
                 });

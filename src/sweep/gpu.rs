@@ -60,8 +60,11 @@ impl Gpu {
     /// are not taken (`--backend auto` then falls back to the CPU twin, which is faster).
     /// Returns Ok(None) when no suitable adapter exists.
     pub fn acquire(allow_cpu_adapter: bool) -> anyhow::Result<Option<Gpu>> {
-        let instance =
-            wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+        // Vulkan, Metal, DX12 only (WGPU_BACKEND may narrow it further): the GL backend has no
+        // storage-buffer atomics on many drivers and probing it logs EGL noise.
+        let mut desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
+        desc.backends &= wgpu::Backends::PRIMARY;
+        let instance = wgpu::Instance::new(desc);
         let mut adapters = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::PRIMARY));
         adapters.retain(|a| allow_cpu_adapter || !is_cpu_adapter(&a.get_info()));
         adapters.retain(|a| {
@@ -125,12 +128,22 @@ impl Gpu {
     }
 
     /// Render every posed triangle of `input` into fresh depth images.
-    pub fn sweep(&self, input: &SweepInput, observer: &dyn Observer) -> anyhow::Result<DepthImages> {
+    pub fn sweep(
+        &self,
+        input: &SweepInput,
+        observer: &dyn Observer,
+    ) -> anyhow::Result<DepthImages> {
         let limits = self.device.limits();
         let encoded = empty_encoded(input);
-        let image_bytes: u64 = encoded.iter().map(|e| 4 * e.len() as u64).max().unwrap_or(0);
+        let image_bytes: u64 = encoded
+            .iter()
+            .map(|e| 4 * e.len() as u64)
+            .max()
+            .unwrap_or(0);
         let input_bytes = (36 * input.triangles.len()).max(48 * input.poses.len()) as u64;
-        let binding_limit = (limits.max_storage_buffer_binding_size as u64).min(limits.max_buffer_size);
+        let binding_limit = limits
+            .max_storage_buffer_binding_size
+            .min(limits.max_buffer_size);
         if image_bytes.max(input_bytes) > binding_limit {
             bail!(
                 "the sweep needs a {} MiB GPU buffer but {} allows {} MiB; lower the resolution or use --backend cpu",
@@ -139,12 +152,26 @@ impl Gpu {
                 binding_limit >> 20
             );
         }
-        let tris = self.storage("triangles", bytemuck::cast_slice(&input.triangles), wgpu::BufferUsages::empty());
-        let poses = self.storage("poses", bytemuck::cast_slice(&input.poses), wgpu::BufferUsages::empty());
+        let tris = self.storage(
+            "triangles",
+            bytemuck::cast_slice(&input.triangles),
+            wgpu::BufferUsages::empty(),
+        );
+        let poses = self.storage(
+            "poses",
+            bytemuck::cast_slice(&input.poses),
+            wgpu::BufferUsages::empty(),
+        );
         let images: Vec<wgpu::Buffer> = encoded
             .iter()
             .enumerate()
-            .map(|(a, e)| self.storage(&format!("image {a}"), bytemuck::cast_slice(e), wgpu::BufferUsages::COPY_SRC))
+            .map(|(a, e)| {
+                self.storage(
+                    &format!("image {a}"),
+                    bytemuck::cast_slice(e),
+                    wgpu::BufferUsages::COPY_SRC,
+                )
+            })
             .collect();
         let params = self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("params"),
@@ -174,7 +201,8 @@ impl Gpu {
             let mut tri_offset = 0;
             while tri_offset < part.tri_count {
                 let tri_count = (part.tri_count - tri_offset).min(max_tris_per_dispatch);
-                let batch = (POSED_TRIANGLES_PER_DISPATCH / tri_count as u64).clamp(1, MAX_WORKGROUPS as u64) as u32;
+                let batch = (POSED_TRIANGLES_PER_DISPATCH / tri_count as u64)
+                    .clamp(1, MAX_WORKGROUPS as u64) as u32;
                 let mut pose_offset = 0;
                 while pose_offset < part.pose_count {
                     if observer.cancelled() {

@@ -29,7 +29,7 @@ impl Interval {
 
     pub fn is_empty(&self) -> bool {
         // Written so that NaN counts as empty.
-        !(self.t0 <= self.t1)
+        self.t0.is_nan() || self.t1.is_nan() || self.t0 > self.t1
     }
 
     fn add(&mut self, t0: f32, t1: f32) {

@@ -54,7 +54,12 @@ pub fn dist_triangle(p: V3, t: [V3; 3]) -> f64 {
 /// The interval of t where point (u, v, t) along axis `axis` (u, v on the other two axes in the
 /// order given) is within `d` of triangle `tri`, by minimizing the convex distance along the line
 /// and bisecting both sides. None when the line misses the offset.
-pub fn line_interval(tri: [V3; 3], axis: usize, uv: [(usize, f64); 2], d: f64) -> Option<(f64, f64)> {
+pub fn line_interval(
+    tri: [V3; 3],
+    axis: usize,
+    uv: [(usize, f64); 2],
+    d: f64,
+) -> Option<(f64, f64)> {
     let point = |t: f64| {
         let mut p = [0.0; 3];
         p[axis] = t;
@@ -64,7 +69,12 @@ pub fn line_interval(tri: [V3; 3], axis: usize, uv: [(usize, f64); 2], d: f64) -
     };
     let f = |t: f64| dist_triangle(point(t), tri);
     let lo0 = tri.iter().map(|v| v[axis]).fold(f64::INFINITY, f64::min) - d - 1.0;
-    let hi0 = tri.iter().map(|v| v[axis]).fold(f64::NEG_INFINITY, f64::max) + d + 1.0;
+    let hi0 = tri
+        .iter()
+        .map(|v| v[axis])
+        .fold(f64::NEG_INFINITY, f64::max)
+        + d
+        + 1.0;
     // Golden-section search for the minimum of a convex function.
     let (mut a, mut b) = (lo0, hi0);
     let g = (5f64.sqrt() - 1.0) / 2.0;

@@ -1,0 +1,52 @@
+#!/usr/bin/env bash
+# Set up a fresh Debian machine for sweptvol's tests and run every one of them.
+# Installs (only what is missing): lavapipe, the Vulkan loader, a Python venv with the
+# independent EXR reader. Then: format, lints, all tests (GPU path on lavapipe), the example.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+say() { printf '\n==> %s\n' "$*"; }
+sudo_() { if [ "$(id -u)" = 0 ]; then "$@"; else sudo "$@"; fi; }
+
+apt_install() {
+    # The image deletes apt's cache under concurrent runs: use a private one, wait for the lock.
+    mkdir -p /tmp/apt-cache/partial
+    sudo_ apt-get update -qq
+    sudo_ env DEBIAN_FRONTEND=noninteractive apt-get install -y -q -o DPkg::Lock::Timeout=600 \
+        -o Dir::Cache::Archives=/tmp/apt-cache "$@" ||
+        { sudo_ apt-get -f install -y -q && sudo_ env DEBIAN_FRONTEND=noninteractive apt-get install -y -q \
+            -o DPkg::Lock::Timeout=600 -o Dir::Cache::Archives=/tmp/apt-cache "$@"; }
+}
+
+say "system packages"
+missing=()
+for p in mesa-vulkan-drivers libvulkan1; do
+    dpkg -s "$p" >/dev/null 2>&1 || missing+=("$p")
+done
+python3 -m venv --help >/dev/null 2>&1 || missing+=(python3-venv)
+if ((${#missing[@]})); then apt_install "${missing[@]}"; else echo "all present"; fi
+
+say "Python venv for the independent EXR reader"
+venv=target/test-venv
+if ! "$venv/bin/python" -c 'import OpenEXR, numpy' 2>/dev/null; then
+    python3 -m venv "$venv"
+    "$venv/bin/pip" install -q --disable-pip-version-check OpenEXR numpy
+fi
+
+export SWEPTVOL_TEST_PYTHON="$PWD/$venv/bin/python"
+export SWEPTVOL_REQUIRE_GPU=1     # a missing adapter fails the GPU tests instead of skipping
+export SWEPTVOL_REQUIRE_PYTHON=1  # likewise for the independent EXR reader
+export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-/tmp/xdg-runtime-$(id -u)}"
+mkdir -p "$XDG_RUNTIME_DIR" && chmod 700 "$XDG_RUNTIME_DIR"
+
+say "format and lints"
+cargo fmt --all -- --check
+cargo clippy --all-targets --locked -- -D warnings
+
+say "tests (GPU path on whatever adapter wgpu finds: lavapipe here)"
+cargo test --all-targets --locked
+
+say "the README's example"
+cargo run --release --locked -- run --generator examples/bunny.glb \
+    --trajectory examples/bunny-vibration.csv --out target/example-results --overwrite --quiet
+ls target/example-results

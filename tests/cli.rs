@@ -1,0 +1,247 @@
+//! The real binary in fresh temporary folders: a good run, and every kind of bad input giving
+//! its clear error while writing nothing.
+
+use std::fs;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use base64::Engine;
+
+fn sweptvol(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_sweptvol"))
+        .args(args)
+        .env("RUST_LOG", "warn")
+        .output()
+        .expect("run sweptvol")
+}
+
+/// A .gltf with the given named nodes, each carrying a one-triangle mesh, buffer as a data URI.
+fn write_gltf(dir: &Path, file: &str, node_names: &[&str], uri: Option<&str>) -> PathBuf {
+    let mut bin = Vec::new();
+    for v in [[0f32, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.5]] {
+        for c in v {
+            bin.extend_from_slice(&c.to_le_bytes());
+        }
+    }
+    let data_uri = format!(
+        "data:application/octet-stream;base64,{}",
+        base64::engine::general_purpose::STANDARD.encode(&bin)
+    );
+    let nodes: Vec<serde_json::Value> = node_names
+        .iter()
+        .enumerate()
+        .map(|(i, n)| serde_json::json!({"name": n, "mesh": 0, "translation": [i as f64 * 2.0, 0.0, 0.0]}))
+        .collect();
+    let doc = serde_json::json!({
+        "asset": {"version": "2.0"},
+        "scene": 0,
+        "scenes": [{"nodes": (0..node_names.len()).collect::<Vec<_>>()}],
+        "nodes": nodes,
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+        "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3",
+                        "min": [0.0, 0.0, 0.0], "max": [1.0, 1.0, 0.5]}],
+        "bufferViews": [{"buffer": 0, "byteLength": 36}],
+        "buffers": [{"byteLength": 36, "uri": uri.unwrap_or(&data_uri)}],
+    });
+    let path = dir.join(file);
+    fs::write(&path, serde_json::to_vec_pretty(&doc).unwrap()).unwrap();
+    path
+}
+
+fn write(dir: &Path, file: &str, text: &str) -> PathBuf {
+    let p = dir.join(file);
+    fs::write(&p, text).unwrap();
+    p
+}
+
+const GOOD_CSV: &str =
+    "# two poses\nframe,tx,ty,tz,qw,qx,qy,qz\n0,0,0,0,1,0,0,0\n1,0.1,0,0,1,0,0,0\n";
+
+fn run_args<'a>(g: &'a str, t: &'a str, out: &'a str) -> Vec<&'a str> {
+    vec![
+        "run",
+        "--generator",
+        g,
+        "--trajectory",
+        t,
+        "--out",
+        out,
+        "--resolution",
+        "32",
+        "--backend",
+        "cpu",
+        "--quiet",
+    ]
+}
+
+#[test]
+fn good_run_writes_all_outputs_and_never_overwrites_silently() {
+    let dir = tempfile::tempdir().unwrap();
+    let g = write_gltf(dir.path(), "part.gltf", &["part"], None);
+    let t = write(dir.path(), "part.csv", GOOD_CSV);
+    let out = dir.path().join("results");
+    let (gs, ts, os) = (
+        g.to_str().unwrap(),
+        t.to_str().unwrap(),
+        out.to_str().unwrap(),
+    );
+    let o = sweptvol(&run_args(gs, ts, os));
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let mut names: Vec<String> = fs::read_dir(&out)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    assert_eq!(
+        names,
+        [
+            "part.depth-xmax.exr",
+            "part.depth-xmin.exr",
+            "part.depth-ymax.exr",
+            "part.depth-ymin.exr",
+            "part.depth-zmax.exr",
+            "part.depth-zmin.exr",
+            "part.report.json"
+        ]
+    );
+    let report: serde_json::Value =
+        serde_json::from_slice(&fs::read(out.join("part.report.json")).unwrap()).unwrap();
+    assert_eq!(report["counts"]["posed_triangles"], 2);
+    assert_eq!(report["resolution"], 32);
+    assert!(report["parameters"]["rounding"].as_f64().unwrap() > 0.0);
+    for key in ["read_inputs", "setup", "sweep", "write_outputs", "total"] {
+        assert!(report["timings"][key].as_f64().is_some(), "timing {key}");
+    }
+
+    // A second run refuses to overwrite and leaves the files as they were.
+    let before = fs::read(out.join("part.depth-zmin.exr")).unwrap();
+    let o = sweptvol(&run_args(gs, ts, os));
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("already exists") && err.contains("--overwrite"),
+        "{err}"
+    );
+    assert_eq!(before, fs::read(out.join("part.depth-zmin.exr")).unwrap());
+
+    // --overwrite replaces them; --name changes the stem.
+    let mut args = run_args(gs, ts, os);
+    args.extend(["--overwrite", "--name", "other"]);
+    let o = sweptvol(&args);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(out.join("other.report.json").exists());
+}
+
+/// Run with a bad input; expect exit code 2, every `needle` in stderr, and no output folder.
+fn expect_input_error(gltf: &Path, csv: &Path, needles: &[&str]) {
+    let out = gltf.parent().unwrap().join("results");
+    let o = sweptvol(&run_args(
+        gltf.to_str().unwrap(),
+        csv.to_str().unwrap(),
+        out.to_str().unwrap(),
+    ));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "exit code for {needles:?}: {err}");
+    for n in needles {
+        assert!(err.contains(n), "stderr lacks {n:?}: {err}");
+    }
+    assert!(err.contains("fix:"), "no fix in: {err}");
+    assert!(
+        !out.exists(),
+        "an output folder was created for a bad input: {err}"
+    );
+}
+
+#[test]
+fn bad_trajectories_are_refused_by_file_line_and_column() {
+    let dir = tempfile::tempdir().unwrap();
+    let g = write_gltf(dir.path(), "part.gltf", &["part", "twin", "twin"], None);
+    let header = "frame,tx,ty,tz,qw,qx,qy,qz\n";
+    let cases: &[(&str, String, &[&str])] = &[
+        ("nan.csv", format!("{header}0,0,0,0,1,0,0,0\n1,nan,0,0,1,0,0,0\n"), &["nan.csv:3", "tx"]),
+        ("quat.csv", format!("{header}0,0,0,0,0.5,0,0,0\n"), &["quat.csv:2", "qw", "unit quaternion"]),
+        ("empty.csv", header.to_string(), &["empty.csv", "at least one pose"]),
+        ("typo.csv", "frame,tx,ty,tz,qw,qx,qy,qzz\n0,0,0,0,1,0,0,0\n".into(), &["typo.csv:1", "qzz"]),
+        (
+            "singular.csv",
+            "m00,m01,m02,m03,m10,m11,m12,m13,m20,m21,m22,m23,m30,m31,m32,m33\n1,0,0,0,0,1,0,0,0,0,0,0,0,0,0,1\n".into(),
+            &["singular.csv:2", "singular"],
+        ),
+        (
+            "lastrow.csv",
+            "# comment\nm00,m01,m02,m03,m10,m11,m12,m13,m20,m21,m22,m23,m30,m31,m32,m33\n1,0,0,0,0,1,0,0,0,0,1,0,0,0.5,0,1\n".into(),
+            &["lastrow.csv:3", "m31", "0 0 0 1"],
+        ),
+        ("unknown.csv", format!("node,{header}wheel,0,0,0,0,1,0,0,0\n"), &["unknown.csv:2", "node", "wheel"]),
+        ("ambiguous.csv", format!("node,{header}twin,0,0,0,0,1,0,0,0\n"), &["ambiguous.csv:2", "twin", "ambiguous"]),
+    ];
+    for (file, text, needles) in cases {
+        let t = write(dir.path(), file, text);
+        expect_input_error(&g, &t, needles);
+    }
+}
+
+#[test]
+fn bad_generators_are_refused_by_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let t = write(dir.path(), "part.csv", GOOD_CSV);
+    let garbage = write(dir.path(), "garbage.glb", "this is not a glTF file");
+    expect_input_error(&garbage, &t, &["garbage.glb"]);
+
+    fs::write(dir.path().parent().unwrap().join("outside.bin"), [0u8; 36]).ok();
+    let escaping = write_gltf(
+        dir.path(),
+        "escaping.gltf",
+        &["part"],
+        Some("../outside.bin"),
+    );
+    expect_input_error(&escaping, &t, &["escaping.gltf", "../outside.bin"]);
+
+    let missing = write_gltf(dir.path(), "missing.gltf", &["part"], Some("nowhere.bin"));
+    expect_input_error(&missing, &t, &["missing.gltf", "nowhere.bin"]);
+
+    let empty = write(
+        dir.path(),
+        "empty.gltf",
+        r#"{"asset":{"version":"2.0"},"scene":0,"scenes":[{"nodes":[0]}],"nodes":[{"name":"empty"}]}"#,
+    );
+    expect_input_error(&empty, &t, &["empty.gltf", "triangles"]);
+
+    // A NaN vertex.
+    let nan = write_gltf(dir.path(), "nan.gltf", &["part"], None);
+    let mut doc: serde_json::Value = serde_json::from_slice(&fs::read(&nan).unwrap()).unwrap();
+    let mut bin = vec![0u8; 36];
+    bin[0..4].copy_from_slice(&f32::NAN.to_le_bytes());
+    doc["buffers"][0]["uri"] = format!(
+        "data:application/octet-stream;base64,{}",
+        base64::engine::general_purpose::STANDARD.encode(&bin)
+    )
+    .into();
+    fs::write(&nan, serde_json::to_vec(&doc).unwrap()).unwrap();
+    expect_input_error(&nan, &t, &["nan.gltf"]);
+}
+
+#[test]
+fn bad_settings_are_refused_before_writing() {
+    let dir = tempfile::tempdir().unwrap();
+    let g = write_gltf(dir.path(), "part.gltf", &["part"], None);
+    let t = write(dir.path(), "part.csv", GOOD_CSV);
+    let out = dir.path().join("results");
+    for extra in [
+        &["--resolution", "4"][..],
+        &["--delta", "0.0001"][..],
+        &["--name", "../up"][..],
+    ] {
+        let mut args = run_args(
+            g.to_str().unwrap(),
+            t.to_str().unwrap(),
+            out.to_str().unwrap(),
+        );
+        args.retain(|a| *a != "--resolution" && *a != "32");
+        args.extend(extra);
+        let o = sweptvol(&args);
+        assert!(!o.status.success(), "{extra:?} was accepted");
+        assert!(!String::from_utf8_lossy(&o.stderr).is_empty());
+        assert!(!out.exists(), "{extra:?} created outputs");
+    }
+}
