@@ -9,7 +9,8 @@ An independent check of the files `src/io/exr_depth.rs` writes. Needs the PyPI p
 
 Output keys: channels (names, sorted), dtypes (numpy dtype per channel), width, height,
 z_min / z_max (over finite Z, world units; null if none), inf_count (pixels with Z = +inf),
-meta (the `sweptvol:meta` JSON text), attributes (the other `sweptvol:*` header attributes:
+z_bits (every Z as its float32 bit pattern, row-major from the top row, so a comparison is exact
+and keeps infinities), meta (the `sweptvol:meta` JSON text), attributes (the other `sweptvol:*` header attributes:
 text as str, doubles as float; OpenEXR itself gives doubles as numpy arrays of shape (1,)).
 """
 
@@ -53,6 +54,7 @@ def summarize(path):
         "z_min": float(finite.min()) if finite.size else None,
         "z_max": float(finite.max()) if finite.size else None,
         "inf_count": int(np.isposinf(z).sum()),
+        "z_bits": z.astype(np.float32).view(np.uint32).ravel().tolist(),
         "meta": meta,
         "attributes": attributes,
     }

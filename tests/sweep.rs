@@ -5,7 +5,7 @@ mod common;
 
 use std::path::Path;
 
-use common::{line_interval, Rng, V3};
+use common::{check_samples, line_interval, posed_grid_triangles, Rng, V3};
 use glam::{DMat4, DVec3, Vec3};
 use sweptvol::depth::{DepthImages, COLUMN_AXIS, ROW_AXIS};
 use sweptvol::grid::{Accuracy, Overrides};
@@ -52,23 +52,6 @@ fn build(g: &Generator, poses: &[DMat4], resolution: u32) -> SweepInput {
         Overrides::default(),
     )
     .expect("job builds")
-}
-
-/// Every posed triangle in grid units (f64, posed exactly from the f64 matrices).
-fn posed_grid_triangles(g: &Generator, poses: &[DMat4], input: &SweepInput) -> Vec<[V3; 3]> {
-    let mut out = Vec::new();
-    for m in poses {
-        for part in &g.parts {
-            let full = *m * part.world;
-            for t in &part.triangles {
-                out.push(t.map(|i| {
-                    let w = full.transform_point3(part.positions[i as usize].as_dvec3());
-                    input.grid.to_grid(w).to_array()
-                }));
-            }
-        }
-    }
-    out
 }
 
 /// For every pixel of every image: the computed interval contains the exact interval of the
@@ -421,52 +404,6 @@ fn random_sweeps_match_the_oracle() {
         let images = cpu::sweep(&input, &Silent).unwrap();
         check_against_oracle(&input, &images, &posed_grid_triangles(&g, &poses, &input));
     }
-}
-
-/// The property: a point p of a posed triangle, seen by the pixel whose centre is
-/// nearest in the image plane (in-plane distance r <= √2/2 voxel), lies on a ray that passes
-/// within r of p, so the ray meets the ball B_δ(p) ⊂ O_δ(T) in p_a ± sqrt(δ² - r²).
-/// Hence D⁻ <= p_a - sqrt(δ² - r²) and D⁺ >= p_a + sqrt(δ² - r²), with the unrounded δ.
-fn check_samples(
-    input: &SweepInput,
-    images: &DepthImages,
-    tris: &[[V3; 3]],
-    rng: &mut Rng,
-) -> usize {
-    let d = input.params.delta / input.grid.h;
-    let mut checked = 0;
-    for t in tris {
-        for k in 0..40 {
-            let (mut b1, mut b2) = (rng.f(), rng.f());
-            if b1 + b2 > 1.0 {
-                (b1, b2) = (1.0 - b1, 1.0 - b2);
-            }
-            if k < 3 {
-                (b1, b2) = [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0)][k];
-            }
-            let p: Vec<f64> = (0..3)
-                .map(|c| t[0][c] + b1 * (t[1][c] - t[0][c]) + b2 * (t[2][c] - t[0][c]))
-                .collect();
-            for img in &images.images {
-                let a = img.axis;
-                let (cu, rv) = (COLUMN_AXIS[a], ROW_AXIS[a]);
-                let (col, rb) = (p[cu].floor(), p[rv].floor());
-                let r2 = (p[cu] - col - 0.5).powi(2) + (p[rv] - rb - 0.5).powi(2);
-                let m = (d * d - r2).sqrt();
-                let i = img.index(col as u32, rb as u32);
-                assert!(
-                    (img.min[i] as f64) <= p[a] - m && (img.max[i] as f64) >= p[a] + m,
-                    "sample {p:?} axis {a}: [{}, {}] misses [{}, {}]",
-                    img.min[i],
-                    img.max[i],
-                    p[a] - m,
-                    p[a] + m
-                );
-                checked += 1;
-            }
-        }
-    }
-    checked
 }
 
 #[test]
