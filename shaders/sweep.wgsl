@@ -1,7 +1,7 @@
 // Conservative sweep (paper section 4) as a compute shader: one invocation per posed triangle
 // renders the triangle's δ-offset into the three axis images by exact ray casts, folding hits in
 // with atomic min/max. CPU twin: src/sweep/cpu.rs (`splat`, `pose_triangle`) and
-// src/sweep/offset.rs (`ray_interval`, `encode`). Keep them in step, formula for formula.
+// src/sweep/offset.rs (`PreparedTriangle`, `encode`). Keep them in step, formula for formula.
 //
 // Units: grid units (1 = one voxel edge) from the grid's min corner. Pixel (col, row) of the
 // image of axis a is the ray through (col + 1/2, height - 1 - row + 1/2) in the image plane
@@ -43,46 +43,95 @@ fn encode_depth(x: f32) -> u32 {
     return b | 0x80000000u;
 }
 
-fn cross2(a: vec2<f32>, b: vec2<f32>) -> f32 {
-    return a.x * b.y - a.y * b.x;
+// offset.rs `PreparedTriangle`: one posed triangle seen along one axis, with everything that does
+// not depend on the pixel computed once. Vertices are (u, v, a) in grid units.
+struct Prepared {
+    d2: f32,
+    q0: vec3<f32>,
+    q1: vec3<f32>,
+    q2: vec3<f32>,
+    // Edge k runs from q_k to q_(k+1)%3.
+    e0: vec3<f32>,
+    e1: vec3<f32>,
+    e2: vec3<f32>,
+    // 1/|e_uv|^2 per edge, 0 for an edge (nearly) parallel to the ray.
+    inv_e_uv2: vec3<f32>,
+    // e_a / (|e| |e_uv|) per edge.
+    shift_scale: vec3<f32>,
+    caps: bool,
+    // Entry foot d*sign(n_a)*n_uv/|n|; the exit foot is its negative.
+    foot: vec2<f32>,
+    inv_na: f32,
+    cap_shift: f32,
 }
 
-// offset.rs `ray_interval`: where the ray {(0,0,t)} is within d of triangle q (ray frame,
-// components (u, v, a)). Returns (t0, t1); empty when t0 > t1.
-fn ray_interval(q0: vec3<f32>, q1: vec3<f32>, q2: vec3<f32>, d: f32) -> vec2<f32> {
-    let d2 = d * d;
+fn prepare(q0: vec3<f32>, q1: vec3<f32>, q2: vec3<f32>, d: f32) -> Prepared {
+    var t: Prepared;
+    t.d2 = d * d;
+    t.q0 = q0;
+    t.q1 = q1;
+    t.q2 = q2;
+    t.e0 = q1 - q0;
+    t.e1 = q2 - q1;
+    t.e2 = q0 - q2;
+    var edges = array<vec3<f32>, 3>(t.e0, t.e1, t.e2);
+    for (var k = 0u; k < 3u; k++) {
+        let e = edges[k];
+        let e_uv2 = e.x * e.x + e.y * e.y;
+        if e_uv2 > MIN_PROJECTED_EDGE2 {
+            t.inv_e_uv2[k] = 1.0 / e_uv2;
+            let e_len = sqrt(e_uv2 + e.z * e.z);
+            t.shift_scale[k] = e.z / (e_len * sqrt(e_uv2));
+        }
+    }
+    let n = cross(t.e0, q2 - q0);
+    let n_len = sqrt(n.x * n.x + n.y * n.y + n.z * n.z);
+    t.caps = n_len > 0.0 && n.z != 0.0;
+    if t.caps {
+        let scale = d * sign(n.z) / n_len;
+        t.foot = vec2<f32>(scale * n.x, scale * n.y);
+        t.inv_na = 1.0 / n.z;
+        t.cap_shift = d * (abs(n.z) / n_len);
+    }
+    return t;
+}
+
+// offset.rs `PreparedTriangle::interval_at`: the ray through (pu, pv) against the offset.
+// Returns (t0, t1); empty when t0 > t1.
+fn interval_at(t: Prepared, pu: f32, pv: f32) -> vec2<f32> {
+    let d2 = t.d2;
     var t0 = BIG;
     var t1 = -BIG;
-    var q = array<vec3<f32>, 3>(q0, q1, q2);
+    var q = array<vec3<f32>, 3>(t.q0, t.q1, t.q2);
+    var edges = array<vec3<f32>, 3>(t.e0, t.e1, t.e2);
+    let p = vec2<f32>(pu, pv);
 
     // Vertex balls.
     for (var k = 0u; k < 3u; k++) {
-        let p = q[k];
-        let r2 = p.x * p.x + p.y * p.y;
+        let r = q[k].xy - p;
+        let r2 = r.x * r.x + r.y * r.y;
         if r2 <= d2 {
             let s = sqrt(d2 - r2);
-            t0 = min(t0, p.z - s);
-            t1 = max(t1, p.z + s);
+            t0 = min(t0, q[k].z - s);
+            t1 = max(t1, q[k].z + s);
         }
     }
 
     // Edge cylinders, evaluated at the clamped optimal edge parameter.
     for (var k = 0u; k < 3u; k++) {
-        let a = q[k];
-        let e = q[(k + 1u) % 3u] - a;
-        let e_uv2 = e.x * e.x + e.y * e.y;
-        if e_uv2 <= MIN_PROJECTED_EDGE2 {
+        let inv = t.inv_e_uv2[k];
+        if inv == 0.0 {
             continue;
         }
-        let c = cross2(a.xy, e.xy);
-        let m2 = c * c / e_uv2;
+        let a = q[k].xy - p;
+        let e = edges[k];
+        let c = a.x * e.y - a.y * e.x;
+        let m2 = c * c * inv;
         if m2 >= d2 {
             continue;
         }
-        let r = sqrt(d2 - m2);
-        let e_len = sqrt(e_uv2 + e.z * e.z);
-        let s_star = -dot(a.xy, e.xy) / e_uv2;
-        let shift = r * e.z / (e_len * sqrt(e_uv2));
+        let shift = sqrt(d2 - m2) * t.shift_scale[k];
+        let s_star = -(a.x * e.x + a.y * e.y) * inv;
         for (var side = 0u; side < 2u; side++) {
             var s = s_star - shift;
             var sgn = -1.0;
@@ -91,29 +140,22 @@ fn ray_interval(q0: vec3<f32>, q1: vec3<f32>, q2: vec3<f32>, d: f32) -> vec2<f32
                 sgn = 1.0;
             }
             s = clamp(s, 0.0, 1.0);
-            let pu = a.x + s * e.x;
-            let pv = a.y + s * e.y;
-            let rho2 = pu * pu + pv * pv;
+            let cu = a.x + s * e.x;
+            let cv = a.y + s * e.y;
+            let rho2 = cu * cu + cv * cv;
             if rho2 <= d2 {
-                let t = a.z + s * e.z + sgn * sqrt(d2 - rho2);
-                t0 = min(t0, t);
-                t1 = max(t1, t);
+                let depth = q[k].z + s * e.z + sgn * sqrt(d2 - rho2);
+                t0 = min(t0, depth);
+                t1 = max(t1, depth);
             }
         }
     }
 
     // Prism caps: the foot of the cap point on the triangle, by barycentrics.
-    let e1 = q1 - q0;
-    let e2 = q2 - q0;
-    let n = cross(e1, e2);
-    let n_len = sqrt(dot(n, n));
-    if n_len > 0.0 && n.z != 0.0 {
-        var sgn = -1.0;
-        if n.z > 0.0 {
-            sgn = 1.0;
-        }
-        let na_abs = abs(n.z) / n_len;
-        let foot_scale = d * sgn / n_len;
+    if t.caps {
+        let e1 = t.e0;
+        let e2 = -t.e2;
+        let a0 = t.q0.xy - p;
         for (var side = 0u; side < 2u; side++) {
             var sd = 1.0;
             var dir = -1.0;
@@ -121,33 +163,34 @@ fn ray_interval(q0: vec3<f32>, q1: vec3<f32>, q2: vec3<f32>, d: f32) -> vec2<f32
                 sd = -1.0;
                 dir = 1.0;
             }
-            let f = vec2<f32>(sd * foot_scale * n.x, sd * foot_scale * n.y);
-            let g = f - q0.xy;
-            let b1 = cross2(g, e2.xy) / n.z;
-            let b2 = cross2(e1.xy, g) / n.z;
+            let g = vec2<f32>(sd * t.foot.x - a0.x, sd * t.foot.y - a0.y);
+            let b1 = (g.x * e2.y - g.y * e2.x) * t.inv_na;
+            let b2 = (e1.x * g.y - e1.y * g.x) * t.inv_na;
             if b1 >= 0.0 && b2 >= 0.0 && b1 + b2 <= 1.0 {
-                let y_a = q0.z + b1 * e1.z + b2 * e2.z;
-                let t = y_a + dir * d * na_abs;
-                t0 = min(t0, t);
-                t1 = max(t1, t);
+                let y_a = t.q0.z + b1 * e1.z + b2 * e2.z;
+                let depth = y_a + dir * t.cap_shift;
+                t0 = min(t0, depth);
+                t1 = max(t1, depth);
             }
         }
     }
     return vec2<f32>(t0, t1);
 }
 
+// cpu.rs `fold_min` / `fold_max`: skip the atomic read-modify-write when a load shows it cannot
+// change the slot (slots only move outward, so a stale load errs toward doing it).
 fn store(axis: u32, slot: u32, t0: f32, t1: f32) {
     let lo = encode_depth(t0);
     let hi = encode_depth(t1);
     if axis == 0u {
-        atomicMin(&image_x[slot], lo);
-        atomicMax(&image_x[slot + 1u], hi);
+        if lo < atomicLoad(&image_x[slot]) { atomicMin(&image_x[slot], lo); }
+        if hi > atomicLoad(&image_x[slot + 1u]) { atomicMax(&image_x[slot + 1u], hi); }
     } else if axis == 1u {
-        atomicMin(&image_y[slot], lo);
-        atomicMax(&image_y[slot + 1u], hi);
+        if lo < atomicLoad(&image_y[slot]) { atomicMin(&image_y[slot], lo); }
+        if hi > atomicLoad(&image_y[slot + 1u]) { atomicMax(&image_y[slot + 1u], hi); }
     } else {
-        atomicMin(&image_z[slot], lo);
-        atomicMax(&image_z[slot + 1u], hi);
+        if lo < atomicLoad(&image_z[slot]) { atomicMin(&image_z[slot], lo); }
+        if hi > atomicLoad(&image_z[slot + 1u]) { atomicMax(&image_z[slot + 1u], hi); }
     }
 }
 
@@ -191,15 +234,16 @@ fn splat(p0: vec3<f32>, p1: vec3<f32>, p2: vec3<f32>, axis: u32) {
     if cs.x > cs.y || rs.x > rs.y {
         return;
     }
-    let a0 = vec3<f32>(component(p0, cu), component(p0, rv), component(p0, axis));
-    let a1 = vec3<f32>(component(p1, cu), component(p1, rv), component(p1, axis));
-    let a2 = vec3<f32>(component(p2, cu), component(p2, rv), component(p2, axis));
+    let tri = prepare(
+        vec3<f32>(component(p0, cu), component(p0, rv), component(p0, axis)),
+        vec3<f32>(component(p1, cu), component(p1, rv), component(p1, axis)),
+        vec3<f32>(component(p2, cu), component(p2, rv), component(p2, axis)),
+        r,
+    );
     for (var row = rs.x; row <= rs.y; row++) {
         let pv = f32(row) + 0.5;
         for (var col = cs.x; col <= cs.y; col++) {
-            let pu = f32(col) + 0.5;
-            let o = vec3<f32>(pu, pv, 0.0);
-            let hit = ray_interval(a0 - o, a1 - o, a2 - o, r);
+            let hit = interval_at(tri, f32(col) + 0.5, pv);
             if hit.x <= hit.y {
                 let pixel = (height - 1u - u32(row)) * width + u32(col);
                 store(axis, 2u * pixel, hit.x, hit.y);

@@ -5,7 +5,7 @@ use std::sync::atomic::{AtomicU32, Ordering};
 
 use rayon::prelude::*;
 
-use super::offset::{encode, ray_interval};
+use super::offset::{encode, PreparedTriangle};
 use super::{empty_encoded, Cancelled, Observer, SLOTS};
 use crate::depth::{DepthImages, COLUMN_AXIS, ROW_AXIS};
 use crate::job::SweepInput;
@@ -73,18 +73,32 @@ pub fn splat(p: &[[f32; 3]; 3], radius: f32, axis: usize, dims: [u32; 3], image:
     let Some((r0, r1)) = pixel_span(p[0][rv], p[1][rv], p[2][rv], radius, height) else {
         return;
     };
+    let tri = PreparedTriangle::new(p.map(|v| [v[cu], v[rv], v[axis]]), radius);
     for row in r0..=r1 {
         let pv = row as f32 + 0.5;
         for col in c0..=c1 {
-            let pu = col as f32 + 0.5;
-            let q = p.map(|v| [v[cu] - pu, v[rv] - pv, v[axis]]);
-            let hit = ray_interval(q, radius);
+            let hit = tri.interval_at(col as f32 + 0.5, pv);
             if hit.t0 <= hit.t1 {
                 let i = SLOTS * ((height - 1 - row) as usize * width as usize + col as usize);
-                image[i].fetch_min(encode(hit.t0), Ordering::Relaxed);
-                image[i + 1].fetch_max(encode(hit.t1), Ordering::Relaxed);
+                fold_min(&image[i], encode(hit.t0));
+                fold_max(&image[i + 1], encode(hit.t1));
             }
         }
+    }
+}
+
+/// Atomic min that skips the read-modify-write when a plain load shows it cannot lower the
+/// value (slots only ever decrease, so a stale load errs toward doing the RMW).
+fn fold_min(slot: &AtomicU32, v: u32) {
+    if v < slot.load(Ordering::Relaxed) {
+        slot.fetch_min(v, Ordering::Relaxed);
+    }
+}
+
+/// Atomic max, likewise (slots only ever increase).
+fn fold_max(slot: &AtomicU32, v: u32) {
+    if v > slot.load(Ordering::Relaxed) {
+        slot.fetch_max(v, Ordering::Relaxed);
     }
 }
 

@@ -42,101 +42,150 @@ impl Interval {
 /// ray. Keeps every quotient below finite. Same constant in the shader.
 pub const MIN_PROJECTED_EDGE2: f32 = 1e-20;
 
-fn cross2(a: [f32; 2], b: [f32; 2]) -> f32 {
-    a[0] * b[1] - a[1] * b[0]
-}
-
-fn dot2(a: [f32; 2], b: [f32; 2]) -> f32 {
-    a[0] * b[0] + a[1] * b[1]
-}
-
 /// The interval where the ray {(0,0,t)} is within distance `d` of triangle `q` (vertices in the
 /// ray frame, components (u, v, a)). `d` > 0 in grid units.
 pub fn ray_interval(q: [[f32; 3]; 3], d: f32) -> Interval {
-    let d2 = d * d;
-    let mut out = Interval::EMPTY;
+    PreparedTriangle::new(q, d).interval_at(0.0, 0.0)
+}
 
-    // Vertex balls: the ray meets B_d(q) where u²+v² <= d².
-    for p in q {
-        let r2 = p[0] * p[0] + p[1] * p[1];
-        if r2 <= d2 {
-            let s = (d2 - r2).sqrt();
-            out.add(p[2] - s, p[2] + s);
-        }
-    }
+/// One posed triangle seen along one axis, with everything that does not depend on the pixel
+/// computed once. `interval_at(pu, pv)` is the ray cast for the ray through (pu, pv).
+#[derive(Clone, Copy, Debug)]
+pub struct PreparedTriangle {
+    d2: f32,
+    /// Vertices (u, v, a), grid units.
+    q: [[f32; 3]; 3],
+    /// Edge k runs from q[k] to q[(k+1)%3].
+    e: [[f32; 3]; 3],
+    /// 1/|e_uv|², or 0 for an edge (nearly) parallel to the ray, whose extremes are its balls.
+    inv_e_uv2: [f32; 3],
+    /// e_a / (|e| |e_uv|): the optimal edge parameter moves by this times R.
+    shift_scale: [f32; 3],
+    /// Whether the prism caps can be met (non-degenerate, not edge-on).
+    caps: bool,
+    /// Entry foot point in the image plane, d·sign(n_a)·n_uv/|n| (the exit foot is its negative).
+    foot: [f32; 2],
+    /// 1/n_a for the barycentrics.
+    inv_na: f32,
+    /// d·|n_a|/|n|: the cap's offset along the ray from the triangle's plane.
+    cap_shift: f32,
+}
 
-    // Edge cylinders (lateral surface). Along the edge a + s·e, s in [0, 1], the ray points
-    // within d of the edge point form [a_a + s e_a - w(s), a_a + s e_a + w(s)] with
-    // w(s) = sqrt(d² - |a_uv + s e_uv|²). Entry and exit are extremes of these convex/concave
-    // functions of s; their unconstrained optima are s* ∓ R e_a / (|e| |e_uv|) with s* the
-    // closest approach in the image plane and R = sqrt(d² - m²), m the distance from the ray to
-    // the projected line. Clamping to [0, 1] gives the constrained optimum (at an end it is the
-    // ball's value). Whatever rounding does to s, the depth is evaluated at that s exactly, so it
-    // is a point within d of the edge: at worst slightly suboptimal, by O(error²).
-    for (i, j) in [(0usize, 1usize), (1, 2), (2, 0)] {
-        let a = q[i];
-        let e = [q[j][0] - a[0], q[j][1] - a[1], q[j][2] - a[2]];
-        let e_uv2 = e[0] * e[0] + e[1] * e[1];
-        if e_uv2 <= MIN_PROJECTED_EDGE2 {
-            // Parallel to the ray (or a point): the balls at both ends give the extremes. An edge
-            // this close to parallel has its lateral extremes within 1e-10 of its ends.
-            continue;
-        }
-        let a_uv = [a[0], a[1]];
-        let e_uv = [e[0], e[1]];
-        let c = cross2(a_uv, e_uv);
-        let m2 = c * c / e_uv2;
-        if m2 >= d2 {
-            continue;
-        }
-        let r = (d2 - m2).sqrt();
-        let e_len = (e_uv2 + e[2] * e[2]).sqrt();
-        let s_star = -dot2(a_uv, e_uv) / e_uv2;
-        let shift = r * e[2] / (e_len * e_uv2.sqrt());
-        for (s, sign) in [(s_star - shift, -1.0f32), (s_star + shift, 1.0f32)] {
-            let s = s.clamp(0.0, 1.0);
-            let pu = a[0] + s * e[0];
-            let pv = a[1] + s * e[1];
-            let rho2 = pu * pu + pv * pv;
-            if rho2 <= d2 {
-                let t = a[2] + s * e[2] + sign * (d2 - rho2).sqrt();
-                out.add(t, t);
+impl PreparedTriangle {
+    pub fn new(q: [[f32; 3]; 3], d: f32) -> Self {
+        let sub = |a: [f32; 3], b: [f32; 3]| [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+        let e = [sub(q[1], q[0]), sub(q[2], q[1]), sub(q[0], q[2])];
+        let mut inv_e_uv2 = [0.0; 3];
+        let mut shift_scale = [0.0; 3];
+        for k in 0..3 {
+            let e_uv2 = e[k][0] * e[k][0] + e[k][1] * e[k][1];
+            if e_uv2 > MIN_PROJECTED_EDGE2 {
+                inv_e_uv2[k] = 1.0 / e_uv2;
+                let e_len = (e_uv2 + e[k][2] * e[k][2]).sqrt();
+                shift_scale[k] = e[k][2] / (e_len * e_uv2.sqrt());
             }
         }
-    }
-
-    // Prism caps T ± d·n. A cap point is y + λn with y in T and |λ| = d; on the ray its image-plane
-    // part is 0, so y_uv = -λ n_uv. Entry takes λ n_a = -d|n_a|, exit +d|n_a|. The foot y_uv is
-    // tested against the projected triangle by barycentrics; y_a = Σ β_i q_i,a with all β >= 0,
-    // so the depth is that of a point of the prism. Feet just outside T are left
-    // to the cylinders, whose surface the cap border lies on.
-    let e1 = [q[1][0] - q[0][0], q[1][1] - q[0][1], q[1][2] - q[0][2]];
-    let e2 = [q[2][0] - q[0][0], q[2][1] - q[0][1], q[2][2] - q[0][2]];
-    let n = [
-        e1[1] * e2[2] - e1[2] * e2[1],
-        e1[2] * e2[0] - e1[0] * e2[2],
-        e1[0] * e2[1] - e1[1] * e2[0],
-    ];
-    let n_len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
-    // n[2] is also twice the signed area of the projected triangle.
-    if n_len > 0.0 && n[2] != 0.0 {
-        let sgn = if n[2] > 0.0 { 1.0f32 } else { -1.0f32 };
-        let na_abs = n[2].abs() / n_len;
-        let foot_scale = d * sgn / n_len;
-        for (side, dir) in [(1.0f32, -1.0f32), (-1.0f32, 1.0f32)] {
-            // Entry: foot = d·sign(n_a)·n_uv; exit: the opposite foot.
-            let f = [side * foot_scale * n[0], side * foot_scale * n[1]];
-            let g = [f[0] - q[0][0], f[1] - q[0][1]];
-            let b1 = cross2(g, [e2[0], e2[1]]) / n[2];
-            let b2 = cross2([e1[0], e1[1]], g) / n[2];
-            if b1 >= 0.0 && b2 >= 0.0 && b1 + b2 <= 1.0 {
-                let y_a = q[0][2] + b1 * e1[2] + b2 * e2[2];
-                let t = y_a + dir * d * na_abs;
-                out.add(t, t);
-            }
+        // Normal from the two edges at q[0] (e2 = q2 - q0 = -e[2]).
+        let (e1, e2) = (e[0], sub(q[2], q[0]));
+        let n = [
+            e1[1] * e2[2] - e1[2] * e2[1],
+            e1[2] * e2[0] - e1[0] * e2[2],
+            e1[0] * e2[1] - e1[1] * e2[0],
+        ];
+        let n_len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+        let caps = n_len > 0.0 && n[2] != 0.0;
+        let (mut foot, mut inv_na, mut cap_shift) = ([0.0; 2], 0.0, 0.0);
+        if caps {
+            let scale = d * n[2].signum() / n_len;
+            foot = [scale * n[0], scale * n[1]];
+            inv_na = 1.0 / n[2];
+            cap_shift = d * (n[2].abs() / n_len);
+        }
+        PreparedTriangle {
+            d2: d * d,
+            q,
+            e,
+            inv_e_uv2,
+            shift_scale,
+            caps,
+            foot,
+            inv_na,
+            cap_shift,
         }
     }
-    out
+
+    /// The ray cast for the ray through image-plane point (pu, pv).
+    pub fn interval_at(&self, pu: f32, pv: f32) -> Interval {
+        let d2 = self.d2;
+        let mut out = Interval::EMPTY;
+        // Vertices relative to the ray.
+        let rel = self.q.map(|p| [p[0] - pu, p[1] - pv]);
+
+        // Vertex balls: the ray meets B_d(q) where u²+v² <= d².
+        for k in 0..3 {
+            let r2 = rel[k][0] * rel[k][0] + rel[k][1] * rel[k][1];
+            if r2 <= d2 {
+                let s = (d2 - r2).sqrt();
+                out.add(self.q[k][2] - s, self.q[k][2] + s);
+            }
+        }
+
+        // Edge cylinders (lateral surface). Along the edge a + s·e, s in [0, 1], the ray points
+        // within d of the edge point form [a_a + s e_a - w(s), a_a + s e_a + w(s)] with
+        // w(s) = sqrt(d² - |a_uv + s e_uv|²). Entry and exit are extremes of these convex/concave
+        // functions of s; their unconstrained optima are s* ∓ R e_a / (|e| |e_uv|) with s* the
+        // closest approach in the image plane and R = sqrt(d² - m²), m the distance from the ray
+        // to the projected line. Clamping to [0, 1] gives the constrained optimum (at an end it is
+        // the ball's value). Whatever rounding does to s, the depth is evaluated at that s
+        // exactly, so it is a point within d of the edge: at worst suboptimal by O(error²).
+        for k in 0..3 {
+            let inv = self.inv_e_uv2[k];
+            if inv == 0.0 {
+                continue;
+            }
+            let (a, e) = (rel[k], self.e[k]);
+            let c = a[0] * e[1] - a[1] * e[0];
+            let m2 = c * c * inv;
+            if m2 >= d2 {
+                continue;
+            }
+            let shift = (d2 - m2).sqrt() * self.shift_scale[k];
+            let s_star = -(a[0] * e[0] + a[1] * e[1]) * inv;
+            for (s, sign) in [(s_star - shift, -1.0f32), (s_star + shift, 1.0f32)] {
+                let s = s.clamp(0.0, 1.0);
+                let pu = a[0] + s * e[0];
+                let pv = a[1] + s * e[1];
+                let rho2 = pu * pu + pv * pv;
+                if rho2 <= d2 {
+                    let t = self.q[k][2] + s * e[2] + sign * (d2 - rho2).sqrt();
+                    out.add(t, t);
+                }
+            }
+        }
+
+        // Prism caps T ± d·n. A cap point is y + λn with y in T and |λ| = d; on the ray its
+        // image-plane part is 0, so y_uv = -λ n_uv. Entry takes λ n_a = -d|n_a|, exit +d|n_a|.
+        // The foot y_uv is tested against the projected triangle by barycentrics;
+        // y_a = Σ β_i q_i,a with all β >= 0, so the depth is that of a point of the prism. Feet
+        // just outside T are left to the cylinders, whose surface the cap border lies on.
+        if self.caps {
+            let (e1, e2) = (self.e[0], [-self.e[2][0], -self.e[2][1], -self.e[2][2]]);
+            for (side, dir) in [(1.0f32, -1.0f32), (-1.0f32, 1.0f32)] {
+                let g = [
+                    side * self.foot[0] - rel[0][0],
+                    side * self.foot[1] - rel[0][1],
+                ];
+                let b1 = (g[0] * e2[1] - g[1] * e2[0]) * self.inv_na;
+                let b2 = (e1[0] * g[1] - e1[1] * g[0]) * self.inv_na;
+                if b1 >= 0.0 && b2 >= 0.0 && b1 + b2 <= 1.0 {
+                    let y_a = self.q[0][2] + b1 * e1[2] + b2 * e2[2];
+                    let t = y_a + dir * self.cap_shift;
+                    out.add(t, t);
+                }
+            }
+        }
+        out
+    }
 }
 
 /// Order-preserving map from f32 to u32: a < b (as floats, no NaN) iff enc(a) < enc(b) (as u32).
