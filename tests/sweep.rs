@@ -539,3 +539,61 @@ fn gpu_matches_cpu_twin_on_random_sweeps() {
     hits += assert_same(&gi, &c, input.rounding, input.radius as f64);
     assert!(hits > 5000, "only {hits} pixels compared");
 }
+
+#[test]
+fn node_rows_move_only_their_own_part_and_static_parts_stay() {
+    let mut rng = Rng(31);
+    let mut g = tetrahedron(&mut rng, 0.2, [0.0, 0.0, 0.0]);
+    let mut other = tetrahedron(&mut rng, 0.2, [0.0, 0.0, 0.0]).parts.remove(0);
+    other.node_name = Some("fixed".into());
+    other.node_index = 1;
+    other.world = DMat4::from_translation(DVec3::new(1.5, 0.0, 0.0)); // W, applied once
+    g.parts.push(other);
+    let moves: Vec<DMat4> = (0..5)
+        .map(|k| DMat4::from_translation(DVec3::new(0.0, 0.3 * k as f64, 0.0)))
+        .collect();
+    let traj = Trajectory {
+        poses: moves
+            .iter()
+            .enumerate()
+            .map(|(i, m)| Pose {
+                line: i as u64 + 2,
+                frame: None,
+                node: Some("part".into()),
+                matrix: *m,
+            })
+            .collect(),
+        has_node_column: true,
+    };
+    let input = job::build(
+        &g,
+        Path::new("t.glb"),
+        &traj,
+        Path::new("t.csv"),
+        Accuracy::Resolution(48),
+        Overrides::default(),
+    )
+    .unwrap();
+    assert_eq!(input.parts.len(), 2);
+    assert_eq!(
+        (input.parts[0].pose_count, input.parts[0].is_static),
+        (5, false)
+    );
+    assert_eq!(
+        (input.parts[1].pose_count, input.parts[1].is_static),
+        (1, true)
+    );
+    let images = cpu::sweep(&input, &Silent).unwrap();
+    // Expected geometry: "part" at each of its poses, "fixed" once at W.
+    let moved = Generator {
+        parts: vec![g.parts[0].clone()],
+        warnings: vec![],
+    };
+    let fixed = Generator {
+        parts: vec![g.parts[1].clone()],
+        warnings: vec![],
+    };
+    let mut tris = posed_grid_triangles(&moved, &moves, &input);
+    tris.extend(posed_grid_triangles(&fixed, &[DMat4::IDENTITY], &input));
+    check_against_oracle(&input, &images, &tris);
+}
