@@ -15,6 +15,8 @@
 //! The caller inflates the radius by the rounding term of `bounds::RoundingBound` to absorb that.
 
 /// Interval [t0, t1] along the ray; empty when t0 > t1 (initially +inf, -inf).
+use wide::{f32x8, CmpGe, CmpLe, CmpLt};
+
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Interval {
     pub t0: f32,
@@ -122,11 +124,11 @@ impl PreparedTriangle {
         let rel = self.q.map(|p| [p[0] - pu, p[1] - pv]);
 
         // Vertex balls: the ray meets B_d(q) where u²+v² <= d².
-        for k in 0..3 {
-            let r2 = rel[k][0] * rel[k][0] + rel[k][1] * rel[k][1];
+        for (r, q) in rel.iter().zip(&self.q) {
+            let r2 = r[0] * r[0] + r[1] * r[1];
             if r2 <= d2 {
                 let s = (d2 - r2).sqrt();
-                out.add(self.q[k][2] - s, self.q[k][2] + s);
+                out.add(q[2] - s, q[2] + s);
             }
         }
 
@@ -138,12 +140,12 @@ impl PreparedTriangle {
         // to the projected line. Clamping to [0, 1] gives the constrained optimum (at an end it is
         // the ball's value). Whatever rounding does to s, the depth is evaluated at that s
         // exactly, so it is a point within d of the edge: at worst suboptimal by O(error²).
-        for k in 0..3 {
+        for (k, &a) in rel.iter().enumerate() {
             let inv = self.inv_e_uv2[k];
             if inv == 0.0 {
                 continue;
             }
-            let (a, e) = (rel[k], self.e[k]);
+            let e = self.e[k];
             let c = a[0] * e[1] - a[1] * e[0];
             let m2 = c * c * inv;
             if m2 >= d2 {
@@ -188,6 +190,76 @@ impl PreparedTriangle {
     }
 }
 
+impl PreparedTriangle {
+    /// [`interval_at`](Self::interval_at) for the 8 rays through (pu[i], pv), i = 0..8: the same
+    /// IEEE operations in the same order in every lane, with masks for the branches, so each
+    /// lane's result is bit-identical to the scalar one (a test checks it). Lanes that miss are
+    /// empty (t0 = +inf, t1 = -inf).
+    pub fn interval_at_x8(&self, pu: f32x8, pv: f32) -> (f32x8, f32x8) {
+        let zero = f32x8::ZERO;
+        let d2 = f32x8::splat(self.d2);
+        let mut t0 = f32x8::splat(f32::INFINITY);
+        let mut t1 = f32x8::splat(f32::NEG_INFINITY);
+        let rel_u = self.q.map(|p| f32x8::splat(p[0]) - pu);
+        let rel_v = self.q.map(|p| f32x8::splat(p[1] - pv));
+        let qa = self.q.map(|p| f32x8::splat(p[2]));
+
+        for k in 0..3 {
+            let r2 = rel_u[k] * rel_u[k] + rel_v[k] * rel_v[k];
+            let hit = r2.cmp_le(d2);
+            let s = (d2 - r2).fast_max(zero).sqrt();
+            t0 = hit.blend(t0.fast_min(qa[k] - s), t0);
+            t1 = hit.blend(t1.fast_max(qa[k] + s), t1);
+        }
+
+        for k in 0..3 {
+            let inv = self.inv_e_uv2[k];
+            if inv == 0.0 {
+                continue;
+            }
+            let (a_u, a_v) = (rel_u[k], rel_v[k]);
+            let e = self.e[k].map(f32x8::splat);
+            let inv = f32x8::splat(inv);
+            let c = a_u * e[1] - a_v * e[0];
+            let m2 = c * c * inv;
+            let near = m2.cmp_lt(d2);
+            if near.none() {
+                continue;
+            }
+            let shift = (d2 - m2).fast_max(zero).sqrt() * f32x8::splat(self.shift_scale[k]);
+            let s_star = -(a_u * e[0] + a_v * e[1]) * inv;
+            for (s, sign) in [(s_star - shift, -1.0f32), (s_star + shift, 1.0f32)] {
+                let s = s.fast_max(zero).fast_min(f32x8::ONE);
+                let pu = a_u + s * e[0];
+                let pv = a_v + s * e[1];
+                let rho2 = pu * pu + pv * pv;
+                let hit = near & rho2.cmp_le(d2);
+                let t = qa[k] + s * e[2] + f32x8::splat(sign) * (d2 - rho2).fast_max(zero).sqrt();
+                t0 = hit.blend(t0.fast_min(t), t0);
+                t1 = hit.blend(t1.fast_max(t), t1);
+            }
+        }
+
+        if self.caps {
+            let e1 = self.e[0].map(f32x8::splat);
+            let e2 = self.e[2].map(|c| f32x8::splat(-c));
+            let inv_na = f32x8::splat(self.inv_na);
+            for (side, dir) in [(1.0f32, -1.0f32), (-1.0f32, 1.0f32)] {
+                let g_u = f32x8::splat(side * self.foot[0]) - rel_u[0];
+                let g_v = f32x8::splat(side * self.foot[1]) - rel_v[0];
+                let b1 = (g_u * e2[1] - g_v * e2[0]) * inv_na;
+                let b2 = (e1[0] * g_v - e1[1] * g_u) * inv_na;
+                let hit = b1.cmp_ge(zero) & b2.cmp_ge(zero) & (b1 + b2).cmp_le(f32x8::ONE);
+                let y_a = qa[0] + b1 * e1[2] + b2 * e2[2];
+                let t = y_a + f32x8::splat(dir * self.cap_shift);
+                t0 = hit.blend(t0.fast_min(t), t0);
+                t1 = hit.blend(t1.fast_max(t), t1);
+            }
+        }
+        (t0, t1)
+    }
+}
+
 /// Order-preserving map from f32 to u32: a < b (as floats, no NaN) iff enc(a) < enc(b) (as u32).
 /// Lets atomic min/max on u32 act as min/max on depths. Same as `encode_depth` in the shader.
 pub fn encode(x: f32) -> u32 {
@@ -211,6 +283,44 @@ pub fn decode(e: u32) -> f32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn eight_lanes_equal_the_scalar_ray_cast_bit_for_bit() {
+        let mut seed = 0x1234_5678_9abc_def0u64;
+        let mut rnd = |lo: f32, hi: f32| {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            lo + (hi - lo) * ((seed >> 40) as f32 / (1u64 << 24) as f32)
+        };
+        let mut hits = 0;
+        for case in 0..20_000 {
+            let mut q = [[0f32; 3]; 3];
+            for v in q.iter_mut() {
+                *v = [rnd(0.0, 12.0), rnd(0.0, 12.0), rnd(100.0, 110.0)];
+            }
+            match case % 4 {
+                0 => q[1] = q[0],
+                1 => q[2][2] = q[0][2] + (q[2][0] - q[0][0]) * 1e-6,
+                _ => {}
+            }
+            let tri = PreparedTriangle::new(q, rnd(0.5, 3.0));
+            let pv = rnd(0.0, 12.0).floor() + 0.5;
+            let u0 = rnd(0.0, 8.0).floor() + 0.5;
+            let pu = f32x8::new(std::array::from_fn(|i| u0 + i as f32));
+            let (t0, t1) = tri.interval_at_x8(pu, pv);
+            for (i, (a, b)) in t0.to_array().into_iter().zip(t1.to_array()).enumerate() {
+                let s = tri.interval_at(u0 + i as f32, pv);
+                assert_eq!(
+                    (a.to_bits(), b.to_bits()),
+                    (s.t0.to_bits(), s.t1.to_bits()),
+                    "case {case} lane {i}"
+                );
+                hits += usize::from(!s.is_empty());
+            }
+        }
+        assert!(hits > 10_000, "{hits}");
+    }
 
     #[test]
     fn encoding_preserves_order() {
