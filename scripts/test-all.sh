@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Set up a fresh Debian machine for sweptvol's tests and run every one of them.
-# Installs (only what is missing): lavapipe, the Vulkan loader, a Python venv with the
-# independent EXR reader. Then: format, lints, all tests (GPU path on lavapipe), the example.
+# Installs (only what is missing): lavapipe, the Vulkan loader, Node and npm, a Python venv with
+# the independent EXR reader, the Khronos glTF validator. Then: format, lints, all tests (GPU path on lavapipe), the example.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -24,6 +24,8 @@ for p in mesa-vulkan-drivers libvulkan1; do
     dpkg -s "$p" >/dev/null 2>&1 || missing+=("$p")
 done
 python3 -m venv --help >/dev/null 2>&1 || missing+=(python3-venv)
+command -v node >/dev/null 2>&1 || missing+=(nodejs)
+command -v npm >/dev/null 2>&1 || missing+=(npm)
 if ((${#missing[@]})); then apt_install "${missing[@]}"; else echo "all present"; fi
 
 say "Python venv for the independent EXR reader"
@@ -33,9 +35,13 @@ if ! "$venv/bin/python" -c 'import OpenEXR, numpy' 2>/dev/null; then
     "$venv/bin/pip" install -q --disable-pip-version-check OpenEXR numpy
 fi
 
+say "Khronos glTF validator (npm)"
+(cd tools/gltf-validator && npm ci --silent --no-audit --no-fund)
+
 export SWEPTVOL_TEST_PYTHON="$PWD/$venv/bin/python"
 export SWEPTVOL_REQUIRE_GPU=1     # a missing adapter fails the GPU tests instead of skipping
 export SWEPTVOL_REQUIRE_PYTHON=1  # likewise for the independent EXR reader
+export SWEPTVOL_REQUIRE_VALIDATOR=1  # and for the glTF validator
 export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-/tmp/xdg-runtime-$(id -u)}"
 mkdir -p "$XDG_RUNTIME_DIR" && chmod 700 "$XDG_RUNTIME_DIR"
 
@@ -50,3 +56,4 @@ say "the README's example"
 cargo run --release --locked -- run --generator examples/bunny.glb \
     --trajectory examples/bunny-vibration.csv --out target/example-results --overwrite --quiet
 ls target/example-results
+node tools/gltf-validator/validate.mjs target/example-results/bunny-vibration.swept.glb

@@ -5,9 +5,12 @@
 
 pub mod depth;
 pub mod error;
+pub mod extract;
 pub mod grid;
 pub mod io;
 pub mod job;
+pub mod mesh;
 pub mod model;
 pub mod pipeline;
 pub mod sweep;
+pub mod voxel;

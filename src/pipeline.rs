@@ -9,11 +9,13 @@ use anyhow::{bail, Context};
 use serde::Serialize;
 
 use crate::depth::{DepthImages, AXIS_NAMES};
+use crate::extract;
 use crate::grid::{Accuracy, Grid, Overrides};
 use crate::io::exr_depth::{self, ExtraMeta, Side};
-use crate::io::{atomic, gltf_in, trajectory};
+use crate::io::{atomic, gltf_in, gltf_out, trajectory};
 use crate::job::{self, PartRange, SweepInput};
 use crate::sweep::{cpu, gpu::Gpu, Observer};
+use crate::voxel::Classifier;
 
 /// Which sweep implementation runs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, Serialize, serde::Deserialize)]
@@ -105,7 +107,30 @@ pub struct Report {
     pub timings: TimingsReport,
     pub outputs: Vec<PathBuf>,
     pub depth_images: DepthImagesReport,
+    pub mesh: MeshReport,
     pub warnings: Vec<String>,
+}
+
+/// The output mesh. Distances in world units.
+#[derive(Clone, Debug, Serialize)]
+pub struct MeshReport {
+    pub file: PathBuf,
+    /// Triangles of the voxel boundary (the paper's T_start) and of the output (T_final).
+    pub triangles_start: u64,
+    pub triangles_final: u64,
+    pub vertices: u64,
+    /// Whether the output was simplified (edge collapses inside the tolerance volume).
+    pub simplified: bool,
+    /// Enclosed volume, world units³.
+    pub volume: f64,
+    /// Guaranteed one-sided Hausdorff distance from the mesh to the swept volume wherever its
+    /// concavities are visible along some axis: √3h/2 + δ + 2ρ + output rounding.
+    pub hausdorff_bound: f64,
+    /// Every point of the mesh is at least this far outside the swept volume:
+    /// δ - √3h/2 - output rounding.
+    pub clearance: f64,
+    /// Largest change of a coordinate when written as f32.
+    pub output_rounding: f64,
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -148,6 +173,8 @@ pub struct TimingsReport {
     pub read_inputs: f64,
     pub setup: f64,
     pub sweep: f64,
+    /// Voxel classification and boundary extraction.
+    pub mesh: f64,
     pub write_outputs: f64,
     pub total: f64,
     /// Posed triangles per second in the sweep stage.
@@ -191,10 +218,10 @@ fn with_stem(stem: &str, suffix: &str) -> String {
     }
 }
 
-/// Every file `run` writes, in order: six depth images, then the report.
+/// Every file `run` writes, in order: the mesh, six depth images, then the report.
 pub fn output_paths(opts: &RunOptions) -> anyhow::Result<Vec<PathBuf>> {
     let stem = output_stem(opts)?;
-    let mut out = Vec::new();
+    let mut out = vec![opts.out_dir.join(with_stem(&stem, "swept.glb"))];
     for axis in 0..3 {
         for side in [Side::Min, Side::Max] {
             out.push(
@@ -276,6 +303,19 @@ pub fn execute(
     let images = backend.sweep(input, observer)?;
     let t_sweep = Instant::now();
 
+    tracing::info!("classifying voxels and extracting the boundary mesh");
+    let mesh = extract::extract(&Classifier::new(&images));
+    let (_, output_rounding) = gltf_out::world_positions(&mesh, &input.grid);
+    // The mesh keeps a clearance of δ - √3h/2 (about 1.57h at the defaults) from the swept
+    // volume; f32 output must not spend a noticeable part of it.
+    if output_rounding > 0.01 * input.grid.h {
+        bail!(
+            "writing the mesh as f32 would move vertices by {output_rounding:e}, more than 1% of the voxel size {}; the part sits too far from the world origin for its size: move it nearer the origin",
+            input.grid.h
+        );
+    }
+    let t_mesh = Instant::now();
+
     let h = input.grid.h;
     let extra = ExtraMeta {
         delta: input.params.delta,
@@ -289,9 +329,39 @@ pub fn execute(
     })?;
     let stem = output_stem(opts)?;
     let files = exr_depth::write_all(&opts.out_dir, &stem, &images, &extra)?;
+    let secs = |a: Instant, b: Instant| (b - a).as_secs_f64();
+    let eps_voxel = 3f64.sqrt() / 2.0 * h;
+    let mesh_report = MeshReport {
+        file: job.outputs[0].clone(),
+        triangles_start: mesh.triangles.len() as u64,
+        triangles_final: mesh.triangles.len() as u64,
+        vertices: mesh.positions.len() as u64,
+        simplified: false,
+        volume: mesh.volume() * h * h * h,
+        hausdorff_bound: eps_voxel
+            + input.params.delta
+            + 2.0 * input.rounding * h
+            + output_rounding,
+        clearance: input.params.delta - eps_voxel - output_rounding,
+        output_rounding,
+    };
+    let extras = serde_json::json!({
+        "sweptvol_version": env!("CARGO_PKG_VERSION"),
+        "hausdorff_bound": mesh_report.hausdorff_bound,
+        "clearance": mesh_report.clearance,
+        "voxel_size": h,
+        "triangles_start": mesh_report.triangles_start,
+        "triangles_final": mesh_report.triangles_final,
+    });
+    gltf_out::write_glb(
+        &job.outputs[0],
+        &mesh,
+        &input.grid,
+        &format!("{stem} swept volume"),
+        extras,
+    )?;
     let t_write = Instant::now();
 
-    let secs = |a: Instant, b: Instant| (b - a).as_secs_f64();
     let sweep_secs = secs(t_setup, t_sweep);
     let report = Report {
         sweptvol_version: env!("CARGO_PKG_VERSION").into(),
@@ -329,7 +399,8 @@ pub fn execute(
             read_inputs: job.read_secs,
             setup: job.setup_secs,
             sweep: sweep_secs,
-            write_outputs: secs(t_sweep, t_write),
+            mesh: secs(t_sweep, t_mesh),
+            write_outputs: secs(t_mesh, t_write),
             total: job.read_secs + job.setup_secs + secs(t_setup, Instant::now()),
             posed_triangles_per_second: input.posed_triangles() as f64 / sweep_secs.max(1e-9),
         },
@@ -343,6 +414,7 @@ pub fn execute(
             empty_pixels: "Z = +inf, Y = 0 (no offset on that ray)".into(),
             files,
         },
+        mesh: mesh_report,
         warnings: job.warnings.clone(),
     };
     let json = serde_json::to_vec_pretty(&report)?;

@@ -101,7 +101,8 @@ fn good_run_writes_all_outputs_and_never_overwrites_silently() {
             "part.depth-ymin.exr",
             "part.depth-zmax.exr",
             "part.depth-zmin.exr",
-            "part.report.json"
+            "part.report.json",
+            "part.swept.glb"
         ]
     );
     let report: serde_json::Value =

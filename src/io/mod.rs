@@ -3,4 +3,5 @@
 pub mod atomic;
 pub mod exr_depth;
 pub mod gltf_in;
+pub mod gltf_out;
 pub mod trajectory;

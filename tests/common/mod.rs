@@ -193,3 +193,25 @@ pub fn check_samples(
     }
     checked
 }
+
+/// Generalized winding number of `mesh` (positions, triangles) at `p`: about 1 inside a closed
+/// outward mesh, 0 outside, robust to small defects (Jacobson et al. 2013; solid angles by
+/// Van Oosterom and Strackee).
+pub fn winding_number(positions: &[V3], triangles: &[[u32; 3]], p: V3) -> f64 {
+    let mut total = 0.0;
+    for t in triangles {
+        let [a, b, c] = t.map(|i| sub(positions[i as usize], p));
+        let (la, lb, lc) = (dot(a, a).sqrt(), dot(b, b).sqrt(), dot(c, c).sqrt());
+        let num = dot(a, cross(b, c));
+        let den = la * lb * lc + dot(a, b) * lc + dot(a, c) * lb + dot(b, c) * la;
+        total += 2.0 * num.atan2(den);
+    }
+    total / (4.0 * std::f64::consts::PI)
+}
+
+/// Distance from p to the nearest of `tris`.
+pub fn dist_to_set(p: V3, tris: &[[V3; 3]]) -> f64 {
+    tris.iter()
+        .map(|t| dist_triangle(p, *t))
+        .fold(f64::INFINITY, f64::min)
+}
