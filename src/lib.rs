@@ -3,6 +3,7 @@
 //! Data flows one way: inputs (`io`) -> `job` (parts, poses, grid) -> `sweep`
 //! (GPU or its CPU twin) -> `depth::DepthImages`, the contract with the mesh stage.
 
+pub mod band;
 pub mod depth;
 pub mod error;
 pub mod extract;
