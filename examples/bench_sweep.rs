@@ -19,7 +19,7 @@ use glam::{DMat4, DQuat, DVec3, Vec3};
 use sweptvol::grid::{Accuracy, Overrides};
 use sweptvol::io::gltf_in;
 use sweptvol::job;
-use sweptvol::model::{Generator, Pose, Trajectory};
+use sweptvol::model::{Generator, Trajectory};
 use sweptvol::pipeline::{Backend, BackendChoice};
 use sweptvol::sweep::Silent;
 
@@ -120,18 +120,7 @@ fn main() -> anyhow::Result<()> {
         .iter()
         .fold(Vec3::MIN, |m, p| m.max(*p));
     let size = (hi - lo).max_element() as f64;
-    let traj = Trajectory {
-        poses: poses(&workload, size, count)
-            .into_iter()
-            .map(|m| Pose {
-                line: 0,
-                frame: None,
-                node: None,
-                matrix: m,
-            })
-            .collect(),
-        has_node_column: false,
-    };
+    let traj = Trajectory::whole_scene(&poses(&workload, size, count));
     let input = job::build(
         &g,
         Path::new("dragon"),

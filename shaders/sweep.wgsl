@@ -65,6 +65,15 @@ struct Prepared {
     cap_shift: f32,
 }
 
+// offset.rs `diff_of_products`: a*b - c*d with about one rounding (Kahan, fused multiply-adds).
+// Assumes fma() is fused, as on the GPUs tested; the GPU-vs-CPU test on thin triangles checks it.
+fn diff_of_products(a: f32, b: f32, c: f32, d: f32) -> f32 {
+    let w = c * d;
+    let e = fma(-c, d, w);
+    let f = fma(a, b, -w);
+    return f + e;
+}
+
 fn prepare(q0: vec3<f32>, q1: vec3<f32>, q2: vec3<f32>, d: f32) -> Prepared {
     var t: Prepared;
     t.d2 = d * d;
@@ -84,7 +93,13 @@ fn prepare(q0: vec3<f32>, q1: vec3<f32>, q2: vec3<f32>, d: f32) -> Prepared {
             t.shift_scale[k] = e.z / (e_len * sqrt(e_uv2));
         }
     }
-    let n = cross(t.e0, q2 - q0);
+    let e1 = t.e0;
+    let e2 = q2 - q0;
+    let n = vec3<f32>(
+        diff_of_products(e1.y, e2.z, e1.z, e2.y),
+        diff_of_products(e1.z, e2.x, e1.x, e2.z),
+        diff_of_products(e1.x, e2.y, e1.y, e2.x),
+    );
     let n_len = sqrt(n.x * n.x + n.y * n.y + n.z * n.z);
     t.caps = n_len > 0.0 && n.z != 0.0;
     if t.caps {
@@ -133,18 +148,20 @@ fn interval_at(t: Prepared, pu: f32, pv: f32) -> vec2<f32> {
         let shift = sqrt(d2 - m2) * t.shift_scale[k];
         let s_star = -(a.x * e.x + a.y * e.y) * inv;
         for (var side = 0u; side < 2u; side++) {
-            var s = s_star - shift;
+            var s_opt = s_star - shift;
             var sgn = -1.0;
             if side == 1u {
-                s = s_star + shift;
+                s_opt = s_star + shift;
                 sgn = 1.0;
             }
-            s = clamp(s, 0.0, 1.0);
+            // An unclamped optimum is taken even if rounding pushed rho2 past d2 (offset.rs).
+            let unclamped = s_opt >= 0.0 && s_opt <= 1.0;
+            let s = clamp(s_opt, 0.0, 1.0);
             let cu = a.x + s * e.x;
             let cv = a.y + s * e.y;
             let rho2 = cu * cu + cv * cv;
-            if rho2 <= d2 {
-                let depth = q[k].z + s * e.z + sgn * sqrt(d2 - rho2);
+            if unclamped || rho2 <= d2 {
+                let depth = q[k].z + s * e.z + sgn * sqrt(max(d2 - rho2, 0.0));
                 t0 = min(t0, depth);
                 t1 = max(t1, depth);
             }
@@ -164,8 +181,8 @@ fn interval_at(t: Prepared, pu: f32, pv: f32) -> vec2<f32> {
                 dir = 1.0;
             }
             let g = vec2<f32>(sd * t.foot.x - a0.x, sd * t.foot.y - a0.y);
-            let b1 = (g.x * e2.y - g.y * e2.x) * t.inv_na;
-            let b2 = (e1.x * g.y - e1.y * g.x) * t.inv_na;
+            let b1 = diff_of_products(g.x, e2.y, g.y, e2.x) * t.inv_na;
+            let b2 = diff_of_products(e1.x, g.y, e1.y, g.x) * t.inv_na;
             if b1 >= 0.0 && b2 >= 0.0 && b1 + b2 <= 1.0 {
                 let y_a = t.q0.z + b1 * e1.z + b2 * e2.z;
                 let depth = y_a + dir * t.cap_shift;

@@ -54,3 +54,22 @@ pub struct Trajectory {
     /// True when the file has a `node` column.
     pub has_node_column: bool,
 }
+
+impl Trajectory {
+    /// Poses that each move the whole scene (no `node` column), as if read from lines 2, 3, ...
+    pub fn whole_scene(matrices: &[DMat4]) -> Self {
+        Trajectory {
+            poses: matrices
+                .iter()
+                .enumerate()
+                .map(|(i, m)| Pose {
+                    line: i as u64 + 2,
+                    frame: None,
+                    node: None,
+                    matrix: *m,
+                })
+                .collect(),
+            has_node_column: false,
+        }
+    }
+}

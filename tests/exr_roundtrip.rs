@@ -13,7 +13,7 @@ use sweptvol::grid::{Accuracy, Overrides};
 use sweptvol::io::exr_depth::{self, ExtraMeta, Side};
 use sweptvol::io::gltf_in;
 use sweptvol::job;
-use sweptvol::model::{Pose, Trajectory};
+use sweptvol::model::Trajectory;
 use sweptvol::sweep::{cpu, Silent};
 
 #[test]
@@ -25,18 +25,7 @@ fn exr_round_trip_is_outward_and_independently_readable() {
                 * DMat4::from_rotation_y(0.1 * k as f64)
         })
         .collect();
-    let traj = Trajectory {
-        poses: poses
-            .iter()
-            .map(|m| Pose {
-                line: 0,
-                frame: None,
-                node: None,
-                matrix: *m,
-            })
-            .collect(),
-        has_node_column: false,
-    };
+    let traj = Trajectory::whole_scene(&poses);
     let input = job::build(
         &generator,
         Path::new("bunny.glb"),

@@ -15,7 +15,7 @@ use sweptvol::grid::{Accuracy, Overrides};
 use sweptvol::io::{gltf_in, gltf_out};
 use sweptvol::job::{self, SweepInput};
 use sweptvol::mesh::Mesh;
-use sweptvol::model::{Generator, Part, Pose, Trajectory};
+use sweptvol::model::{Generator, Part, Trajectory};
 use sweptvol::sweep::{cpu, Silent};
 use sweptvol::voxel::Classifier;
 
@@ -33,18 +33,7 @@ fn generator(positions: Vec<[f32; 3]>, triangles: Vec<[u32; 3]>) -> Generator {
 }
 
 fn sweep_mesh(g: &Generator, poses: &[DMat4], n: u32) -> (SweepInput, Mesh) {
-    let traj = Trajectory {
-        poses: poses
-            .iter()
-            .map(|m| Pose {
-                line: 0,
-                frame: None,
-                node: None,
-                matrix: *m,
-            })
-            .collect(),
-        has_node_column: false,
-    };
+    let traj = Trajectory::whole_scene(poses);
     let input = job::build(
         g,
         Path::new("g.glb"),

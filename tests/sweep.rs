@@ -27,19 +27,7 @@ fn generator(positions: Vec<[f32; 3]>, triangles: Vec<[u32; 3]>) -> Generator {
 }
 
 fn trajectory(poses: &[DMat4]) -> Trajectory {
-    Trajectory {
-        poses: poses
-            .iter()
-            .enumerate()
-            .map(|(i, m)| Pose {
-                line: i as u64 + 2,
-                frame: None,
-                node: None,
-                matrix: *m,
-            })
-            .collect(),
-        has_node_column: false,
-    }
+    Trajectory::whole_scene(poses)
 }
 
 fn build(g: &Generator, poses: &[DMat4], resolution: u32) -> SweepInput {
@@ -57,10 +45,19 @@ fn build(g: &Generator, poses: &[DMat4], resolution: u32) -> SweepInput {
 /// For every pixel of every image: the computed interval contains the exact interval of the
 /// δ-offset (oracle) and lies inside the exact interval of the (δ + 2ρ)-offset.
 fn check_against_oracle(input: &SweepInput, images: &DepthImages, tris: &[[V3; 3]]) {
+    check_axes_against_oracle(input, images, tris, &[0, 1, 2]);
+}
+
+fn check_axes_against_oracle(
+    input: &SweepInput,
+    images: &DepthImages,
+    tris: &[[V3; 3]],
+    axes: &[usize],
+) {
     let d = input.params.delta / input.grid.h;
     let rho = input.rounding;
     let mut checked_hits = 0;
-    for img in &images.images {
+    for img in images.images.iter().filter(|i| axes.contains(&i.axis)) {
         let a = img.axis;
         let (cu, rv) = (COLUMN_AXIS[a], ROW_AXIS[a]);
         for row in 0..img.height {
@@ -119,8 +116,14 @@ fn pixel(images: &DepthImages, axis: usize, u: f64, v: f64) -> (f64, f64) {
 /// Assert a computed depth is the exact value for radius δ, rounded outward within 2ρ.
 fn assert_depth(got: f64, exact_delta: f64, exact_wide: f64, what: &str) {
     let (lo, hi) = (exact_delta.min(exact_wide), exact_delta.max(exact_wide));
+    // The δ side is where underestimation lives: only f64 rounding of the expected value there.
+    let (lo_slack, hi_slack) = if exact_delta <= exact_wide {
+        (1e-9, 1e-5)
+    } else {
+        (1e-5, 1e-9)
+    };
     assert!(
-        got >= lo - 1e-5 && got <= hi + 1e-5,
+        got >= lo - lo_slack && got <= hi + hi_slack,
         "{what}: got {got}, expected within [{lo}, {hi}]"
     );
 }
@@ -596,4 +599,21 @@ fn node_rows_move_only_their_own_part_and_static_parts_stay() {
     let mut tris = posed_grid_triangles(&moved, &moves, &input);
     tris.extend(posed_grid_triangles(&fixed, &[DMat4::IDENTITY], &input));
     check_against_oracle(&input, &images, &tris);
+}
+
+/// Review finding: a long box tilted by a tiny angle, so its long edges are almost parallel to
+/// the z rays; the lateral cylinder entry was dropped and D⁺ came 233 voxels short.
+#[test]
+fn regression_slightly_tilted_pillar_on_both_backends() {
+    let g = box_mesh([0.0, 0.0, 0.0], [0.1, 0.1, 10.0]);
+    let axis = DVec3::new(0.935416766526622, 0.35354698825033026, 0.0);
+    let pose =
+        DMat4::from_translation(DVec3::new(0.008763278934523335, 0.0007434786152714668, 0.0))
+            * DMat4::from_axis_angle(axis, 3.9213888566876635e-4);
+    let input = build(&g, &[pose], 1000);
+    let tris = posed_grid_triangles(&g, &[pose], &input);
+    check_axes_against_oracle(&input, &cpu::sweep(&input, &Silent).unwrap(), &tris, &[2]);
+    if let Some(gpu) = test_gpu() {
+        check_axes_against_oracle(&input, &gpu.sweep(&input, &Silent).unwrap(), &tris, &[2]);
+    }
 }

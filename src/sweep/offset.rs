@@ -44,6 +44,35 @@ impl Interval {
 /// ray. Keeps every quotient below finite. Same constant in the shader.
 pub const MIN_PROJECTED_EDGE2: f32 = 1e-20;
 
+/// a·b - c·d with about one rounding error (Kahan's algorithm with fused multiply-adds):
+/// cross products of nearly parallel vectors (thin triangles) would otherwise lose most digits.
+/// Same as `diff_of_products` in the shader.
+pub fn diff_of_products(a: f32, b: f32, c: f32, d: f32) -> f32 {
+    let w = c * d;
+    let e = (-c).mul_add(d, w);
+    let f = a.mul_add(b, -w);
+    f + e
+}
+
+/// [`diff_of_products`] in eight lanes, bit-identical per lane (fused multiply-adds in hardware
+/// where the target has them, else one lane at a time).
+fn diff_of_products8(a: f32x8, b: f32x8, c: f32x8, d: f32x8) -> f32x8 {
+    #[cfg(target_feature = "fma")]
+    {
+        let w = c * d;
+        let e = (-c).mul_add(d, w);
+        let f = a.mul_add(b, -w);
+        f + e
+    }
+    #[cfg(not(target_feature = "fma"))]
+    {
+        let (a, b, c, d) = (a.to_array(), b.to_array(), c.to_array(), d.to_array());
+        f32x8::new(std::array::from_fn(|i| {
+            diff_of_products(a[i], b[i], c[i], d[i])
+        }))
+    }
+}
+
 /// The interval where the ray {(0,0,t)} is within distance `d` of triangle `q` (vertices in the
 /// ray frame, components (u, v, a)). `d` > 0 in grid units.
 pub fn ray_interval(q: [[f32; 3]; 3], d: f32) -> Interval {
@@ -90,9 +119,9 @@ impl PreparedTriangle {
         // Normal from the two edges at q[0] (e2 = q2 - q0 = -e[2]).
         let (e1, e2) = (e[0], sub(q[2], q[0]));
         let n = [
-            e1[1] * e2[2] - e1[2] * e2[1],
-            e1[2] * e2[0] - e1[0] * e2[2],
-            e1[0] * e2[1] - e1[1] * e2[0],
+            diff_of_products(e1[1], e2[2], e1[2], e2[1]),
+            diff_of_products(e1[2], e2[0], e1[0], e2[2]),
+            diff_of_products(e1[0], e2[1], e1[1], e2[0]),
         ];
         let n_len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
         let caps = n_len > 0.0 && n[2] != 0.0;
@@ -153,13 +182,17 @@ impl PreparedTriangle {
             }
             let shift = (d2 - m2).sqrt() * self.shift_scale[k];
             let s_star = -(a[0] * e[0] + a[1] * e[1]) * inv;
-            for (s, sign) in [(s_star - shift, -1.0f32), (s_star + shift, 1.0f32)] {
-                let s = s.clamp(0.0, 1.0);
+            for (s_opt, sign) in [(s_star - shift, -1.0f32), (s_star + shift, 1.0f32)] {
+                // An unclamped optimum is within d of the ray exactly (ρ(s*)² < d²); near an
+                // edge almost parallel to the ray rounding can still push rho2 past d2, so it is
+                // taken regardless. A clamped one is the end's ball, taken when within d.
+                let unclamped = (0.0..=1.0).contains(&s_opt);
+                let s = s_opt.clamp(0.0, 1.0);
                 let pu = a[0] + s * e[0];
                 let pv = a[1] + s * e[1];
                 let rho2 = pu * pu + pv * pv;
-                if rho2 <= d2 {
-                    let t = self.q[k][2] + s * e[2] + sign * (d2 - rho2).sqrt();
+                if unclamped || rho2 <= d2 {
+                    let t = self.q[k][2] + s * e[2] + sign * (d2 - rho2).max(0.0).sqrt();
                     out.add(t, t);
                 }
             }
@@ -177,8 +210,8 @@ impl PreparedTriangle {
                     side * self.foot[0] - rel[0][0],
                     side * self.foot[1] - rel[0][1],
                 ];
-                let b1 = (g[0] * e2[1] - g[1] * e2[0]) * self.inv_na;
-                let b2 = (e1[0] * g[1] - e1[1] * g[0]) * self.inv_na;
+                let b1 = diff_of_products(g[0], e2[1], g[1], e2[0]) * self.inv_na;
+                let b2 = diff_of_products(e1[0], g[1], e1[1], g[0]) * self.inv_na;
                 if b1 >= 0.0 && b2 >= 0.0 && b1 + b2 <= 1.0 {
                     let y_a = self.q[0][2] + b1 * e1[2] + b2 * e2[2];
                     let t = y_a + dir * self.cap_shift;
@@ -228,12 +261,13 @@ impl PreparedTriangle {
             }
             let shift = (d2 - m2).fast_max(zero).sqrt() * f32x8::splat(self.shift_scale[k]);
             let s_star = -(a_u * e[0] + a_v * e[1]) * inv;
-            for (s, sign) in [(s_star - shift, -1.0f32), (s_star + shift, 1.0f32)] {
-                let s = s.fast_max(zero).fast_min(f32x8::ONE);
+            for (s_opt, sign) in [(s_star - shift, -1.0f32), (s_star + shift, 1.0f32)] {
+                let unclamped = s_opt.cmp_ge(zero) & s_opt.cmp_le(f32x8::ONE);
+                let s = s_opt.fast_max(zero).fast_min(f32x8::ONE);
                 let pu = a_u + s * e[0];
                 let pv = a_v + s * e[1];
                 let rho2 = pu * pu + pv * pv;
-                let hit = near & rho2.cmp_le(d2);
+                let hit = near & (unclamped | rho2.cmp_le(d2));
                 let t = qa[k] + s * e[2] + f32x8::splat(sign) * (d2 - rho2).fast_max(zero).sqrt();
                 t0 = hit.blend(t0.fast_min(t), t0);
                 t1 = hit.blend(t1.fast_max(t), t1);
@@ -247,8 +281,8 @@ impl PreparedTriangle {
             for (side, dir) in [(1.0f32, -1.0f32), (-1.0f32, 1.0f32)] {
                 let g_u = f32x8::splat(side * self.foot[0]) - rel_u[0];
                 let g_v = f32x8::splat(side * self.foot[1]) - rel_v[0];
-                let b1 = (g_u * e2[1] - g_v * e2[0]) * inv_na;
-                let b2 = (e1[0] * g_v - e1[1] * g_u) * inv_na;
+                let b1 = diff_of_products8(g_u, e2[1], g_v, e2[0]) * inv_na;
+                let b2 = diff_of_products8(e1[0], g_v, e1[1], g_u) * inv_na;
                 let hit = b1.cmp_ge(zero) & b2.cmp_ge(zero) & (b1 + b2).cmp_le(f32x8::ONE);
                 let y_a = qa[0] + b1 * e1[2] + b2 * e2[2];
                 let t = y_a + f32x8::splat(dir * self.cap_shift);
