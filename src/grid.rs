@@ -17,8 +17,9 @@ pub const K_SIGMA: f64 = (SQRT_3 + std::f64::consts::SQRT_2) / 2.0;
 pub const K_GLOBAL: f64 = 2.0 * SQRT_3 + std::f64::consts::SQRT_2;
 /// Empty voxels kept around the offset geometry on every side.
 pub const MARGIN_VOXELS: f64 = 1.0;
-/// Largest grid resolution accepted (voxels along the longest edge).
-pub const MAX_RESOLUTION: u32 = 16384;
+/// Largest grid resolution accepted (voxels along the longest edge). Beyond it f32 grid
+/// coordinates leave too little precision (the rounding term would pass 0.05 voxels).
+pub const MAX_RESOLUTION: u32 = 12288;
 /// Smallest grid resolution accepted.
 pub const MIN_RESOLUTION: u32 = 16;
 

@@ -19,7 +19,7 @@ const U32: f64 = f32::EPSILON as f64 / 2.0;
 /// several times that count, and the randomized oracle tests measure the real error against it.
 const RAY_ROUNDING_FACTOR: f64 = 64.0;
 /// The rounding term may use at most this fraction of a voxel; beyond it f32 is too coarse.
-const MAX_ROUNDING_VOXELS: f64 = 0.05;
+const MAX_ROUNDING_VOXELS: f64 = 0.1;
 
 /// A part as the sweep sees it: its triangles and the poses that move it.
 #[derive(Clone, Debug, Serialize)]
@@ -225,6 +225,13 @@ pub fn build(
     let delta_voxels = params.delta / grid.h;
     let rounding = rounding_term(pose_s_max, &grid, delta_voxels);
     if rounding > MAX_ROUNDING_VOXELS {
+        let grid_only = rounding_term(0.0, &grid, delta_voxels);
+        if grid_only > MAX_ROUNDING_VOXELS / 2.0 {
+            anyhow::bail!(
+                "f32 rounding would reach {rounding:.3} voxels at resolution {}; use a resolution of at most 8192",
+                grid.resolution()
+            );
+        }
         return Err(InputError::new(
             gltf_path,
             format!(

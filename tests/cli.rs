@@ -208,6 +208,27 @@ fn bad_generators_are_refused_by_file() {
     );
     expect_input_error(&empty, &t, &["empty.gltf", "triangles"]);
 
+    // Geometry the reader would otherwise ignore: shape keys in use, GPU instancing.
+    let morph = write_gltf(dir.path(), "morph.gltf", &["part"], None);
+    let mut doc: serde_json::Value = serde_json::from_slice(&fs::read(&morph).unwrap()).unwrap();
+    let target = doc["accessors"][0].clone();
+    doc["accessors"].as_array_mut().unwrap().push(target);
+    doc["meshes"][0]["primitives"][0]["targets"] = serde_json::json!([{"POSITION": 1}]);
+    doc["meshes"][0]["weights"] = serde_json::json!([1.0]);
+    fs::write(&morph, serde_json::to_vec(&doc).unwrap()).unwrap();
+    expect_input_error(&morph, &t, &["morph.gltf", "morph targets", "shape keys"]);
+
+    let instanced = write_gltf(dir.path(), "instanced.gltf", &["part"], None);
+    let mut doc: serde_json::Value =
+        serde_json::from_slice(&fs::read(&instanced).unwrap()).unwrap();
+    doc["extensionsUsed"] = serde_json::json!(["EXT_mesh_gpu_instancing"]);
+    fs::write(&instanced, serde_json::to_vec(&doc).unwrap()).unwrap();
+    expect_input_error(
+        &instanced,
+        &t,
+        &["instanced.gltf", "EXT_mesh_gpu_instancing"],
+    );
+
     // A NaN vertex.
     let nan = write_gltf(dir.path(), "nan.gltf", &["part"], None);
     let mut doc: serde_json::Value = serde_json::from_slice(&fs::read(&nan).unwrap()).unwrap();

@@ -45,6 +45,7 @@ pub fn read_generator(path: &Path) -> Result<Generator, InputError> {
 /// Parses glTF `bytes`; `path` names the file in messages and locates external buffers.
 pub fn parse_generator(path: &Path, bytes: &[u8]) -> Result<Generator, InputError> {
     let gltf = open(path, bytes)?;
+    refuse_ignored_geometry(path, &gltf.document)?;
     let buffers = load_buffers(path, &gltf)?;
     let mut generator = Generator::default();
     let roots = scene_roots(&gltf.document, &mut generator.warnings);
@@ -57,6 +58,39 @@ pub fn parse_generator(path: &Path, bytes: &[u8]) -> Result<Generator, InputErro
         ));
     }
     Ok(generator)
+}
+
+/// Refuse features that move or add geometry the reader would otherwise ignore: a sweep that
+/// silently leaves geometry out underestimates.
+fn refuse_ignored_geometry(path: &Path, doc: &gltf::Document) -> Result<(), InputError> {
+    if doc
+        .extensions_used()
+        .any(|e| e == "EXT_mesh_gpu_instancing")
+    {
+        return Err(InputError::new(
+            path,
+            "the file uses EXT_mesh_gpu_instancing, whose extra mesh copies sweptvol does not read",
+            "re-export with instances realized as ordinary nodes",
+        )
+        .in_column("extensionsUsed"));
+    }
+    let nonzero = |w: Option<&[f32]>| w.is_some_and(|w| w.iter().any(|x| *x != 0.0));
+    for node in doc.nodes() {
+        let Some(mesh) = node.mesh() else { continue };
+        let morphs = mesh.primitives().any(|p| p.morph_targets().len() > 0);
+        if morphs && (nonzero(mesh.weights()) || nonzero(node.weights())) {
+            return Err(InputError::new(
+                path,
+                format!(
+                    "mesh {} has morph targets (shape keys) with non-zero weights; only the base shape would be swept",
+                    mesh.name().map_or_else(|| mesh.index().to_string(), |n| format!("{n:?}"))
+                ),
+                "apply the shape keys (or set their weights to 0) before exporting",
+            )
+            .in_column(format!("nodes[{}]", node.index())));
+        }
+    }
+    Ok(())
 }
 
 /// Parses and validates the document. Missing or malformed POSITION `min`/`max`
