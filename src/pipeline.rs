@@ -328,7 +328,14 @@ pub fn execute(
         )
     })?;
     let stem = output_stem(opts)?;
-    let files = exr_depth::write_all(&opts.out_dir, &stem, &images, &extra)?;
+    // Every output is staged under a temporary name and all are renamed together at the end:
+    // an error leaves nothing behind and never mixes old and new outputs.
+    let mut staged = atomic::Staged::default();
+    let files: Vec<PathBuf> = job.outputs[1..7].to_vec();
+    for (k, path) in files.iter().enumerate() {
+        let side = if k % 2 == 0 { Side::Min } else { Side::Max };
+        exr_depth::write_depth_exr(&staged.path_for(path), &images, k / 2, side, &extra)?;
+    }
     let secs = |a: Instant, b: Instant| (b - a).as_secs_f64();
     let eps_voxel = 3f64.sqrt() / 2.0 * h;
     let mesh_report = MeshReport {
@@ -353,13 +360,8 @@ pub fn execute(
         "triangles_start": mesh_report.triangles_start,
         "triangles_final": mesh_report.triangles_final,
     });
-    gltf_out::write_glb(
-        &job.outputs[0],
-        &mesh,
-        &input.grid,
-        &format!("{stem} swept volume"),
-        extras,
-    )?;
+    let glb = gltf_out::glb_bytes(&mesh, &input.grid, &format!("{stem} swept volume"), extras)?;
+    staged.write(&job.outputs[0], &glb)?;
     let t_write = Instant::now();
 
     let sweep_secs = secs(t_setup, t_sweep);
@@ -418,6 +420,16 @@ pub fn execute(
         warnings: job.warnings.clone(),
     };
     let json = serde_json::to_vec_pretty(&report)?;
-    atomic::write_atomic(job.outputs.last().expect("report path"), &json)?;
+    staged.write(job.outputs.last().expect("report path"), &json)?;
+    if !opts.overwrite {
+        // Checked again: a long sweep gives another process time to write the same names.
+        if let Some(existing) = job.outputs.iter().find(|p| p.exists()) {
+            bail!(
+                "{} appeared while sweeping; nothing was written (pass --overwrite to replace it)",
+                existing.display()
+            );
+        }
+    }
+    staged.commit()?;
     Ok(report)
 }
