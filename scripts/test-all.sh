@@ -54,6 +54,6 @@ cargo test --all-targets --locked
 
 say "the README's example"
 cargo run --release --locked -- run --generator examples/bunny.glb \
-    --trajectory examples/bunny-vibration.csv --out target/example-results --overwrite --quiet
+    --trajectory examples/bunny-vibration.csv --out target/example-results --resolution 128 --overwrite --quiet
 ls target/example-results
 node tools/gltf-validator/validate.mjs target/example-results/bunny-vibration.swept.glb

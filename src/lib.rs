@@ -13,5 +13,6 @@ pub mod job;
 pub mod mesh;
 pub mod model;
 pub mod pipeline;
+pub mod simplify;
 pub mod sweep;
 pub mod voxel;

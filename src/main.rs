@@ -59,6 +59,13 @@ struct RunArgs {
     /// Output file stem [default: the trajectory's file stem].
     #[arg(long)]
     name: Option<String>,
+    /// Stop simplifying at this many triangles (the error bound always wins) [default: as far as
+    /// the bound allows].
+    #[arg(long, value_name = "N")]
+    target_triangles: Option<usize>,
+    /// Also write the unsimplified voxel boundary as NAME.start.glb.
+    #[arg(long)]
+    keep_start_mesh: bool,
     /// Replace existing outputs.
     #[arg(long)]
     overwrite: bool,
@@ -102,6 +109,8 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
             epsilon: args.epsilon,
         },
         overwrite: args.overwrite,
+        target_triangles: args.target_triangles.unwrap_or(0),
+        keep_start_mesh: args.keep_start_mesh,
     };
     // Inputs first: a bad file is reported before any GPU start-up.
     let job = pipeline::prepare(&opts)?;

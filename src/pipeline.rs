@@ -14,8 +14,16 @@ use crate::grid::{Accuracy, Grid, Overrides};
 use crate::io::exr_depth::{self, ExtraMeta, Side};
 use crate::io::{atomic, gltf_in, gltf_out, trajectory};
 use crate::job::{self, PartRange, SweepInput};
+use crate::simplify::{simplify, SimplifyOptions, SimplifyStats};
 use crate::sweep::{cpu, gpu::Gpu, Observer};
 use crate::voxel::Classifier;
+
+/// Covering radius of the samples that decide the simplifier's band tests, voxels.
+const SAMPLE_RADIUS_VOXELS: f64 = 0.25;
+/// Covering radius of the samples that decide the swept-region test, voxels.
+const SWEEP_SAMPLE_RADIUS_VOXELS: f64 = 0.4;
+/// Kept between the swept region's band and the limit δ - √3h/2, voxels.
+const SWEEP_MARGIN_VOXELS: f64 = 0.05;
 
 /// Which sweep implementation runs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, Serialize, serde::Deserialize)]
@@ -90,6 +98,11 @@ pub struct RunOptions {
     pub accuracy: Accuracy,
     pub overrides: Overrides,
     pub overwrite: bool,
+    /// Stop simplifying at this many triangles (the error bounds always win); 0: as far as
+    /// the bounds allow.
+    pub target_triangles: usize,
+    /// Also write the unsimplified voxel boundary as `<stem>.start.glb`.
+    pub keep_start_mesh: bool,
 }
 
 /// The report written beside the depth images (`<name>.report.json`).
@@ -121,13 +134,15 @@ pub struct MeshReport {
     pub vertices: u64,
     /// Whether the output was simplified (edge collapses inside the tolerance volume).
     pub simplified: bool,
+    /// Collapses done and candidates refused, by reason.
+    pub simplification: SimplifyStats,
     /// Enclosed volume, world units³.
     pub volume: f64,
     /// Guaranteed one-sided Hausdorff distance from the mesh to the swept volume wherever its
-    /// concavities are visible along some axis: √3h/2 + δ + 2ρ + output rounding.
+    /// concavities are visible along some axis: ε + √3h/2 + δ + 2ρ + output rounding.
     pub hausdorff_bound: f64,
     /// Every point of the mesh is at least this far outside the swept volume:
-    /// δ - √3h/2 - output rounding.
+    /// δ - √3h/2 - ε - output rounding.
     pub clearance: f64,
     /// Largest change of a coordinate when written as f32.
     pub output_rounding: f64,
@@ -175,6 +190,8 @@ pub struct TimingsReport {
     pub sweep: f64,
     /// Voxel classification and boundary extraction.
     pub mesh: f64,
+    /// Bounded edge collapses.
+    pub simplify: f64,
     pub write_outputs: f64,
     pub total: f64,
     /// Posed triangles per second in the sweep stage.
@@ -218,7 +235,12 @@ fn with_stem(stem: &str, suffix: &str) -> String {
     }
 }
 
-/// Every file `run` writes, in order: the mesh, six depth images, then the report.
+/// Index in [`output_paths`] of the report and of the optional start mesh.
+const REPORT: usize = 7;
+const START_MESH: usize = 8;
+
+/// Every file `run` writes, in order: the mesh, six depth images (x, y, z; min, max), the report,
+/// and with `keep_start_mesh` the unsimplified mesh.
 pub fn output_paths(opts: &RunOptions) -> anyhow::Result<Vec<PathBuf>> {
     let stem = output_stem(opts)?;
     let mut out = vec![opts.out_dir.join(with_stem(&stem, "swept.glb"))];
@@ -231,6 +253,9 @@ pub fn output_paths(opts: &RunOptions) -> anyhow::Result<Vec<PathBuf>> {
         }
     }
     out.push(opts.out_dir.join(with_stem(&stem, "report.json")));
+    if opts.keep_start_mesh {
+        out.push(opts.out_dir.join(with_stem(&stem, "start.glb")));
+    }
     Ok(out)
 }
 
@@ -304,9 +329,34 @@ pub fn execute(
     let t_sweep = Instant::now();
 
     tracing::info!("classifying voxels and extracting the boundary mesh");
-    let mesh = extract::extract(&Classifier::new(&images));
+    let classifier = Classifier::new(&images);
+    let start = extract::extract(&classifier);
+    let t_extract = Instant::now();
+    tracing::info!(
+        "simplifying {} triangles within the tolerance band",
+        start.triangles.len()
+    );
+    let h = input.grid.h;
+    let half_diag = 3f64.sqrt() / 2.0; // voxels
+    let band = SimplifyOptions {
+        eps: input.params.epsilon / h,
+        eps_sweep: input.params.delta / h - half_diag - SWEEP_MARGIN_VOXELS,
+        sample_radius: SAMPLE_RADIUS_VOXELS,
+        sweep_sample_radius: SWEEP_SAMPLE_RADIUS_VOXELS,
+        target_triangles: opts.target_triangles,
+    };
+    // Soundness (docs/design.md): a point within eps of the voxel boundary is at least
+    // δ - √3h/2 - eps from the swept volume.
+    if band.eps + half_diag >= input.params.delta / h || band.eps <= band.sample_radius {
+        bail!(
+            "ε = {} is too large for δ = {}: the simplifier needs ε + √3h/2 < δ; lower --epsilon or raise --delta",
+            input.params.epsilon,
+            input.params.delta
+        );
+    }
+    let (mesh, simplify_stats) = simplify(&start, &classifier, band);
     let (_, output_rounding) = gltf_out::world_positions(&mesh, &input.grid);
-    // The mesh keeps a clearance of δ - √3h/2 (about 1.57h at the defaults) from the swept
+    // The mesh keeps a clearance of δ - √3h/2 - ε (about 0.71h at the defaults) from the swept
     // volume; f32 output must not spend a noticeable part of it.
     if output_rounding > 0.01 * input.grid.h {
         bail!(
@@ -316,7 +366,6 @@ pub fn execute(
     }
     let t_mesh = Instant::now();
 
-    let h = input.grid.h;
     let extra = ExtraMeta {
         delta: input.params.delta,
         rounding: input.rounding * h,
@@ -337,19 +386,21 @@ pub fn execute(
         exr_depth::write_depth_exr(&staged.path_for(path), &images, k / 2, side, &extra)?;
     }
     let secs = |a: Instant, b: Instant| (b - a).as_secs_f64();
-    let eps_voxel = 3f64.sqrt() / 2.0 * h;
+    let eps_voxel = half_diag * h;
     let mesh_report = MeshReport {
         file: job.outputs[0].clone(),
-        triangles_start: mesh.triangles.len() as u64,
+        triangles_start: start.triangles.len() as u64,
         triangles_final: mesh.triangles.len() as u64,
         vertices: mesh.positions.len() as u64,
-        simplified: false,
+        simplified: true,
+        simplification: simplify_stats,
         volume: mesh.volume() * h * h * h,
-        hausdorff_bound: eps_voxel
+        hausdorff_bound: input.params.epsilon
+            + eps_voxel
             + input.params.delta
             + 2.0 * input.rounding * h
             + output_rounding,
-        clearance: input.params.delta - eps_voxel - output_rounding,
+        clearance: input.params.delta - eps_voxel - input.params.epsilon - output_rounding,
         output_rounding,
     };
     let extras = serde_json::json!({
@@ -362,6 +413,12 @@ pub fn execute(
     });
     let glb = gltf_out::glb_bytes(&mesh, &input.grid, &format!("{stem} swept volume"), extras)?;
     staged.write(&job.outputs[0], &glb)?;
+    if opts.keep_start_mesh {
+        let name = format!("{stem} voxel boundary");
+        let extras = serde_json::json!({"sweptvol_version": env!("CARGO_PKG_VERSION"), "triangles": start.triangles.len()});
+        let start_glb = gltf_out::glb_bytes(&start, &input.grid, &name, extras)?;
+        staged.write(&job.outputs[START_MESH], &start_glb)?;
+    }
     let t_write = Instant::now();
 
     let sweep_secs = secs(t_setup, t_sweep);
@@ -401,7 +458,8 @@ pub fn execute(
             read_inputs: job.read_secs,
             setup: job.setup_secs,
             sweep: sweep_secs,
-            mesh: secs(t_sweep, t_mesh),
+            mesh: secs(t_sweep, t_extract),
+            simplify: secs(t_extract, t_mesh),
             write_outputs: secs(t_mesh, t_write),
             total: job.read_secs + job.setup_secs + secs(t_setup, Instant::now()),
             posed_triangles_per_second: input.posed_triangles() as f64 / sweep_secs.max(1e-9),
@@ -420,7 +478,7 @@ pub fn execute(
         warnings: job.warnings.clone(),
     };
     let json = serde_json::to_vec_pretty(&report)?;
-    staged.write(job.outputs.last().expect("report path"), &json)?;
+    staged.write(&job.outputs[REPORT], &json)?;
     if !opts.overwrite {
         // Checked again: a long sweep gives another process time to write the same names.
         if let Some(existing) = job.outputs.iter().find(|p| p.exists()) {

@@ -16,6 +16,7 @@ use sweptvol::io::{gltf_in, gltf_out};
 use sweptvol::job::{self, SweepInput};
 use sweptvol::mesh::Mesh;
 use sweptvol::model::{Generator, Part, Trajectory};
+use sweptvol::simplify::{simplify, SimplifyOptions};
 use sweptvol::sweep::{cpu, Silent};
 use sweptvol::voxel::Classifier;
 
@@ -79,7 +80,32 @@ fn samples(tris: &[[V3; 3]], rng: &mut Rng, per: usize) -> Vec<V3> {
     out
 }
 
+/// The simplifier's defaults (grid units), as the pipeline sets them.
+fn simplify_options(input: &SweepInput) -> SimplifyOptions {
+    let d = input.params.delta / input.grid.h;
+    SimplifyOptions {
+        eps: 3f64.sqrt() / 2.0,
+        eps_sweep: d - 3f64.sqrt() / 2.0 - 0.05,
+        sample_radius: 0.25,
+        sweep_sample_radius: 0.4,
+        target_triangles: 0,
+    }
+}
+
 fn check_mesh(input: &SweepInput, mesh: &Mesh, tris: &[[V3; 3]], visible: bool, rng: &mut Rng) {
+    check_mesh_with(input, mesh, tris, visible, rng, 0.0);
+}
+
+/// `eps`: the tolerance band the mesh may occupy around the voxel boundary (0 for the
+/// unsimplified boundary itself).
+fn check_mesh_with(
+    input: &SweepInput,
+    mesh: &Mesh,
+    tris: &[[V3; 3]],
+    visible: bool,
+    rng: &mut Rng,
+    eps: f64,
+) {
     assert!(
         mesh.unpaired_edges().is_empty(),
         "mesh is not watertight or not consistently oriented"
@@ -97,14 +123,14 @@ fn check_mesh(input: &SweepInput, mesh: &Mesh, tris: &[[V3; 3]], visible: bool, 
     // Clearance and (where concavities are visible) the Hausdorff bound, grid units.
     let d = input.params.delta / input.grid.h;
     let half_diag = 3f64.sqrt() / 2.0;
-    let bound = half_diag + d + 2.0 * input.rounding;
+    let bound = eps + half_diag + d + 2.0 * input.rounding;
     let mut worst: f64 = 0.0;
     for t in &mesh.triangles {
         let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
         for p in [a, (a + b + c) / 3.0, (a + b) / 2.0] {
             let dist = dist_to_set(p.to_array(), tris);
             assert!(
-                dist >= d - half_diag - 1e-9,
+                dist >= d - half_diag - eps - 1e-9,
                 "mesh point {p} only {dist} voxels from the swept volume"
             );
             worst = worst.max(dist);
@@ -216,4 +242,74 @@ fn glb_round_trip_and_khronos_validator() {
     let j: serde_json::Value = serde_json::from_str(report.lines().next().unwrap()).unwrap();
     assert_eq!(j["numErrors"], 0, "{report}");
     assert_eq!(j["numWarnings"], 0, "{report}");
+}
+
+/// Simplify, then check everything again with the band's bounds.
+fn check_simplified(
+    g: &Generator,
+    poses: &[DMat4],
+    n: u32,
+    visible: bool,
+    seed: u64,
+) -> (usize, usize) {
+    let (input, start) = sweep_mesh(g, poses, n);
+    let traj_images = {
+        let traj = Trajectory::whole_scene(poses);
+        let input2 = job::build(
+            g,
+            Path::new("g.glb"),
+            &traj,
+            Path::new("t.csv"),
+            Accuracy::Resolution(n),
+            Overrides::default(),
+        )
+        .unwrap();
+        cpu::sweep(&input2, &Silent).unwrap()
+    };
+    let cls = Classifier::new(&traj_images);
+    let opts = simplify_options(&input);
+    let (out, stats) = simplify(&start, &cls, opts);
+    let tris = posed_grid_triangles(g, poses, &input);
+    check_mesh_with(&input, &out, &tris, visible, &mut Rng(seed), opts.eps);
+    assert!(stats.collapses > 0);
+    (start.triangles.len(), out.triangles.len())
+}
+
+#[test]
+fn simplified_meshes_keep_enclosure_clearance_and_bound() {
+    let mut rng = Rng(3);
+    let g = tetrahedron(&mut rng, 0.5);
+    let (t0, t1) = check_simplified(&g, &[DMat4::IDENTITY], 28, true, 1);
+    println!("convex part: {t0} -> {t1} triangles");
+    assert!(t1 * 5 < t0, "{t0} -> {t1}: the simplifier barely worked");
+
+    let mut rng = Rng(4);
+    let g = tetrahedron(&mut rng, 0.3);
+    let poses: Vec<DMat4> = (0..6)
+        .map(|k| DMat4::from_translation(DVec3::new(0.15 * k as f64, 0.1 * k as f64, 0.0)))
+        .collect();
+    let (t0, t1) = check_simplified(&g, &poses, 36, true, 2);
+    println!("staircase path: {t0} -> {t1} triangles");
+
+    for seed in 0..3u64 {
+        let mut rng = Rng(100 + seed);
+        let g = tetrahedron(&mut rng, 0.4);
+        let poses: Vec<DMat4> = (0..(2 + rng.below(5)))
+            .map(|_| {
+                let axis = DVec3::new(
+                    rng.range(-1.0, 1.0),
+                    rng.range(-1.0, 1.0),
+                    rng.range(0.1, 1.0),
+                )
+                .normalize();
+                DMat4::from_translation(DVec3::new(
+                    rng.range(-1.0, 1.0),
+                    rng.range(-1.0, 1.0),
+                    rng.range(-1.0, 1.0),
+                )) * DMat4::from_axis_angle(axis, rng.range(-3.0, 3.0))
+            })
+            .collect();
+        let (t0, t1) = check_simplified(&g, &poses, 30, false, 10 + seed);
+        println!("random {seed}: {t0} -> {t1} triangles");
+    }
 }

@@ -1,0 +1,676 @@
+//! Bounded simplification of the voxel boundary by edge collapses (paper section 5), with the
+//! sound checks argued in docs/design.md:
+//!
+//! - tolerance: every new triangle lies within `eps` of ∂W (sampled with a proven covering
+//!   radius), so it stays at least δ - √3/2 - eps outside the swept volume and within
+//!   eps + √3/2 + δ of it where concavities are visible;
+//! - sweep: every tetrahedron joining an old triangle around the edge to the new vertex lies
+//!   within `eps_sweep` of ∂W (eps_sweep + √3/2 < δ), so the surface never passes over a point
+//!   of the swept volume and every such point stays enclosed;
+//! - topology: only edges with two faces whose endpoints are manifold and satisfy the link
+//!   condition collapse, so the mesh stays watertight and no fan is torn; no face may flip.
+//!
+//! Candidates are ordered by quadric error (Garland and Heckbert), cheapest first; a target
+//! triangle count stops early. Units: grid units (one voxel edge = 1).
+
+use std::cmp::Ordering;
+use std::collections::BinaryHeap;
+
+use glam::{DMat3, DVec3};
+
+use crate::band::{cover_triangle, dist_to_boundary};
+use crate::mesh::Mesh;
+use crate::voxel::Classifier;
+
+/// What the simplifier may do, grid units.
+#[derive(Clone, Copy, Debug)]
+pub struct SimplifyOptions {
+    /// Tolerance band half-width around ∂W for the output surface.
+    pub eps: f64,
+    /// Band half-width for the region swept by a collapse (must satisfy eps_sweep + √3/2 < δ).
+    pub eps_sweep: f64,
+    /// Covering radius of the samples that decide the band test (smaller than eps).
+    pub sample_radius: f64,
+    /// Covering radius of the samples that decide the sweep test (smaller than eps_sweep).
+    pub sweep_sample_radius: f64,
+    /// Stop once the mesh has at most this many triangles (the checks always win).
+    pub target_triangles: usize,
+}
+
+/// Counts of what happened, for the report and the tests.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct SimplifyStats {
+    pub collapses: u64,
+    pub rejected_topology: u64,
+    pub rejected_flip: u64,
+    pub rejected_band: u64,
+    pub rejected_sweep: u64,
+}
+
+/// Symmetric 4x4 quadric: upper triangle of [A b; bᵀ c] for the error vᵀAv + 2bᵀv + c.
+#[derive(Clone, Copy, Debug, Default)]
+struct Quadric {
+    a: [f64; 6], // xx xy xz yy yz zz
+    b: [f64; 3],
+    c: f64,
+}
+
+impl Quadric {
+    /// Area-weighted plane of the triangle.
+    fn plane(p: [DVec3; 3]) -> Quadric {
+        let n2 = (p[1] - p[0]).cross(p[2] - p[0]);
+        let area = n2.length() / 2.0;
+        let Some(n) = n2.try_normalize() else {
+            return Quadric::default();
+        };
+        let d = -n.dot(p[0]);
+        Quadric {
+            a: [
+                n.x * n.x,
+                n.x * n.y,
+                n.x * n.z,
+                n.y * n.y,
+                n.y * n.z,
+                n.z * n.z,
+            ]
+            .map(|x| x * area),
+            b: [n.x * d, n.y * d, n.z * d].map(|x| x * area),
+            c: d * d * area,
+        }
+    }
+
+    fn add(&self, o: &Quadric) -> Quadric {
+        Quadric {
+            a: std::array::from_fn(|i| self.a[i] + o.a[i]),
+            b: std::array::from_fn(|i| self.b[i] + o.b[i]),
+            c: self.c + o.c,
+        }
+    }
+
+    fn matrix(&self) -> DMat3 {
+        let a = self.a;
+        DMat3::from_cols_array(&[a[0], a[1], a[2], a[1], a[3], a[4], a[2], a[4], a[5]])
+    }
+
+    fn error(&self, v: DVec3) -> f64 {
+        let b = DVec3::from_array(self.b);
+        (v.dot(self.matrix() * v) + 2.0 * b.dot(v) + self.c).max(0.0)
+    }
+
+    /// The error-minimizing point, if the system is well conditioned.
+    fn optimum(&self) -> Option<DVec3> {
+        let m = self.matrix();
+        let det = m.determinant();
+        let scale = m
+            .to_cols_array()
+            .iter()
+            .map(|x| x.abs())
+            .fold(0.0, f64::max);
+        (det.abs() > 1e-9 * scale * scale * scale)
+            .then(|| -(m.inverse() * DVec3::from_array(self.b)))
+    }
+}
+
+#[derive(Clone, Copy, Debug)]
+struct Candidate {
+    cost: f64,
+    a: u32,
+    b: u32,
+    /// Vertex versions when the candidate was computed; stale if either changed.
+    ver: (u32, u32),
+    target: DVec3,
+}
+
+impl PartialEq for Candidate {
+    fn eq(&self, o: &Self) -> bool {
+        self.cost == o.cost
+    }
+}
+impl Eq for Candidate {}
+impl PartialOrd for Candidate {
+    fn partial_cmp(&self, o: &Self) -> Option<Ordering> {
+        Some(self.cmp(o))
+    }
+}
+impl Ord for Candidate {
+    // Min-heap on cost.
+    fn cmp(&self, o: &Self) -> Ordering {
+        o.cost.total_cmp(&self.cost)
+    }
+}
+
+struct State<'c> {
+    cls: &'c Classifier,
+    /// Per visited voxel: bit n set when voxel n of the 5x5x5 block around it (n = 25(dk+2) +
+    /// 5(dj+2) + di+2) has the other class. Enough for distances below two voxels.
+    opposite: std::collections::HashMap<[isize; 3], u128>,
+    opts: SimplifyOptions,
+    pos: Vec<DVec3>,
+    tris: Vec<[u32; 3]>,
+    tri_alive: Vec<bool>,
+    /// Live triangles around each vertex.
+    star: Vec<Vec<u32>>,
+    vert_alive: Vec<bool>,
+    version: Vec<u32>,
+    quadric: Vec<Quadric>,
+    live_tris: usize,
+    stats: SimplifyStats,
+}
+
+/// Simplify `mesh` (the voxel boundary of `cls`) within the bands of `opts`.
+pub fn simplify(mesh: &Mesh, cls: &Classifier, opts: SimplifyOptions) -> (Mesh, SimplifyStats) {
+    assert!(opts.sample_radius > 0.0 && opts.sample_radius < opts.eps);
+    assert!(opts.sweep_sample_radius > 0.0 && opts.sweep_sample_radius < opts.eps_sweep);
+    let n = mesh.positions.len();
+    let mut s = State {
+        cls,
+        opposite: std::collections::HashMap::new(),
+        opts,
+        pos: mesh.positions.clone(),
+        tris: mesh.triangles.clone(),
+        tri_alive: vec![true; mesh.triangles.len()],
+        star: vec![Vec::new(); n],
+        vert_alive: vec![true; n],
+        version: vec![0; n],
+        quadric: vec![Quadric::default(); n],
+        live_tris: mesh.triangles.len(),
+        stats: SimplifyStats::default(),
+    };
+    for (t, tri) in mesh.triangles.iter().enumerate() {
+        let q = Quadric::plane(tri.map(|i| s.pos[i as usize]));
+        for &v in tri {
+            s.star[v as usize].push(t as u32);
+            s.quadric[v as usize] = s.quadric[v as usize].add(&q);
+        }
+    }
+    let mut heap = BinaryHeap::new();
+    for tri in &mesh.triangles {
+        for k in 0..3 {
+            let (a, b) = (tri[k], tri[(k + 1) % 3]);
+            if a < b {
+                heap.push(s.candidate(a, b));
+            }
+        }
+    }
+    while let Some(c) = heap.pop() {
+        if s.live_tris <= opts.target_triangles {
+            break;
+        }
+        let (a, b) = (c.a as usize, c.b as usize);
+        if !s.vert_alive[a] || !s.vert_alive[b] || (s.version[a], s.version[b]) != c.ver {
+            continue;
+        }
+        if s.try_collapse(a, b, c.target) {
+            // Edges whose triangles changed: around a, and around its neighbours (their stars
+            // now hold moved triangles, so earlier rejections may no longer hold).
+            let ring = s.neighbours(a);
+            let mut edges: Vec<(usize, usize)> = Vec::new();
+            for &nb in &ring {
+                edges.push((a.min(nb), a.max(nb)));
+                for x in s.neighbours(nb) {
+                    edges.push((nb.min(x), nb.max(x)));
+                }
+            }
+            edges.sort_unstable();
+            edges.dedup();
+            for (x, y) in edges {
+                heap.push(s.candidate(x as u32, y as u32));
+            }
+        }
+    }
+    (s.compact(), s.stats)
+}
+
+impl State<'_> {
+    fn candidate(&self, a: u32, b: u32) -> Candidate {
+        let (pa, pb) = (self.pos[a as usize], self.pos[b as usize]);
+        let q = self.quadric[a as usize].add(&self.quadric[b as usize]);
+        let mut options = vec![pa, pb, (pa + pb) / 2.0];
+        if let Some(o) = q.optimum() {
+            // Keep the optimum near the edge: far-flung optima are numerical accidents.
+            if (o - (pa + pb) / 2.0).length() <= (pb - pa).length() {
+                options.push(o);
+            }
+        }
+        let (cost, target) = options
+            .into_iter()
+            .map(|v| (q.error(v), v))
+            .min_by(|x, y| x.0.total_cmp(&y.0))
+            .expect("options");
+        Candidate {
+            cost,
+            a,
+            b,
+            ver: (self.version[a as usize], self.version[b as usize]),
+            target,
+        }
+    }
+
+    fn neighbours(&self, v: usize) -> Vec<usize> {
+        let mut out: Vec<usize> = self.star[v]
+            .iter()
+            .flat_map(|&t| self.tris[t as usize])
+            .map(|x| x as usize)
+            .filter(|&x| x != v)
+            .collect();
+        out.sort_unstable();
+        out.dedup();
+        out
+    }
+
+    /// Whether v's triangles form one closed fan (a disc around v).
+    fn is_manifold(&self, v: usize) -> bool {
+        // Each triangle contributes its edge opposite v, oriented; one fan means these edges
+        // chain into a single cycle through every link vertex once.
+        let mut next = std::collections::HashMap::new();
+        for &t in &self.star[v] {
+            let tri = self.tris[t as usize];
+            let k = tri
+                .iter()
+                .position(|&x| x as usize == v)
+                .expect("v in its star");
+            let (p, q) = (tri[(k + 1) % 3], tri[(k + 2) % 3]);
+            if next.insert(p, q).is_some() {
+                return false;
+            }
+        }
+        let Some(&start) = next.keys().next() else {
+            return false;
+        };
+        let (mut at, mut steps) = (start, 0);
+        loop {
+            let Some(&n) = next.get(&at) else {
+                return false;
+            };
+            at = n;
+            steps += 1;
+            if at == start {
+                return steps == next.len();
+            }
+            if steps > next.len() {
+                return false;
+            }
+        }
+    }
+
+    fn try_collapse(&mut self, a: usize, b: usize, v: DVec3) -> bool {
+        // Topology: a two-face edge between manifold vertices, and the link condition.
+        let shared: Vec<u32> = self.star[a]
+            .iter()
+            .copied()
+            .filter(|t| self.tris[*t as usize].contains(&(b as u32)))
+            .collect();
+        if shared.len() != 2 || !self.is_manifold(a) || !self.is_manifold(b) {
+            self.stats.rejected_topology += 1;
+            return false;
+        }
+        let opposite: Vec<usize> = shared
+            .iter()
+            .map(|&t| {
+                let tri = self.tris[t as usize];
+                *tri.iter()
+                    .find(|&&x| x as usize != a && x as usize != b)
+                    .expect("third vertex") as usize
+            })
+            .collect();
+        let (na, nb) = (self.neighbours(a), self.neighbours(b));
+        let common = na.iter().filter(|x| nb.binary_search(x).is_ok()).count();
+        if common != 2 || opposite[0] == opposite[1] {
+            self.stats.rejected_topology += 1;
+            return false;
+        }
+
+        // The triangles around the edge before, and those that survive with a, b moved to v.
+        let mut around: Vec<u32> = self.star[a].iter().chain(&self.star[b]).copied().collect();
+        around.sort_unstable();
+        around.dedup();
+        let old: Vec<[DVec3; 3]> = around
+            .iter()
+            .map(|&t| self.tris[t as usize].map(|x| self.pos[x as usize]))
+            .collect();
+        let mut changed: Vec<(u32, [DVec3; 3])> = Vec::new();
+        for &t in &around {
+            let tri = self.tris[t as usize];
+            if shared.contains(&t) {
+                continue;
+            }
+            let q = tri.map(|x| {
+                if x as usize == a || x as usize == b {
+                    v
+                } else {
+                    self.pos[x as usize]
+                }
+            });
+            changed.push((t, q));
+        }
+        for (_, q) in &changed {
+            let n_new = (q[1] - q[0]).cross(q[2] - q[0]);
+            if n_new.length_squared() <= 1e-18 {
+                self.stats.rejected_flip += 1;
+                return false;
+            }
+        }
+        for (t, q) in &changed {
+            let p = self.tris[*t as usize].map(|x| self.pos[x as usize]);
+            let n_old = (p[1] - p[0]).cross(p[2] - p[0]);
+            let n_new = (q[1] - q[0]).cross(q[2] - q[0]);
+            if n_old.dot(n_new) <= 0.0 {
+                self.stats.rejected_flip += 1;
+                return false;
+            }
+        }
+        // Tolerance band for the new surface.
+        let (eps, r) = (self.opts.eps, self.opts.sample_radius);
+        for (_, q) in &changed {
+            if !cover_triangle(*q, r).all(|s| self.near_boundary(s, eps - r)) {
+                self.stats.rejected_band += 1;
+                return false;
+            }
+        }
+        // The region swept by the collapse: tetrahedra (old triangle, v). First the cheap
+        // certificate over the cells of their common bounding box, then per tetrahedron, then
+        // samples.
+        let es = self.opts.eps_sweep;
+        let tets: Vec<[DVec3; 4]> = old.iter().map(|p| [p[0], p[1], p[2], v]).collect();
+        if !cells_near_boundary(self.cls, tets.iter().flatten().copied(), es) {
+            let rs = self.opts.sweep_sample_radius;
+            for t in &tets {
+                if !cells_near_boundary(self.cls, t.iter().copied(), es)
+                    && !cover_tetrahedron(*t, rs).all(|s| self.near_boundary(s, es - rs))
+                {
+                    self.stats.rejected_sweep += 1;
+                    return false;
+                }
+            }
+        }
+
+        // Apply: b merges into a at v.
+        for &t in &shared {
+            self.tri_alive[t as usize] = false;
+            self.live_tris -= 1;
+            for x in self.tris[t as usize] {
+                self.star[x as usize].retain(|&u| u != t);
+            }
+        }
+        let moved: Vec<u32> = self.star[b].clone();
+        for t in moved {
+            for x in self.tris[t as usize].iter_mut() {
+                if *x as usize == b {
+                    *x = a as u32;
+                }
+            }
+            self.star[a].push(t);
+        }
+        self.star[b].clear();
+        self.vert_alive[b] = false;
+        self.pos[a] = v;
+        self.quadric[a] = self.quadric[a].add(&self.quadric[b]);
+        self.version[a] += 1;
+        self.stats.collapses += 1;
+        true
+    }
+
+    /// Whether `p` is within `limit` (< 2) of ∂W: [`dist_to_boundary`] through the per-voxel
+    /// memo of opposite-class voxels (a voxel three steps away is at least 2 from p).
+    fn near_boundary(&mut self, p: DVec3, limit: f64) -> bool {
+        if limit >= 2.0 {
+            return dist_to_boundary(self.cls, p, limit).is_some();
+        }
+        let v = p.floor();
+        let key = [v.x as isize, v.y as isize, v.z as isize];
+        let cls = self.cls;
+        let mask = *self.opposite.entry(key).or_insert_with(|| {
+            let here = cls.inside(key[0], key[1], key[2]);
+            let mut m = 0u128;
+            for n in 0..125isize {
+                let (di, dj, dk) = (n % 5 - 2, n / 5 % 5 - 2, n / 25 - 2);
+                if cls.inside(key[0] + di, key[1] + dj, key[2] + dk) != here {
+                    m |= 1 << n;
+                }
+            }
+            m
+        });
+        let limit2 = limit * limit;
+        let local = p - v; // in [0, 1)³
+        let mut bits = mask;
+        while bits != 0 {
+            let n = bits.trailing_zeros() as i32;
+            bits &= bits - 1;
+            let off = DVec3::new(
+                (n % 5 - 2) as f64,
+                (n / 5 % 5 - 2) as f64,
+                (n / 25 - 2) as f64,
+            );
+            // Distance from `local` to the unit cube at `off`.
+            let g = (off - local)
+                .max(local - (off + DVec3::ONE))
+                .max(DVec3::ZERO);
+            if g.length_squared() <= limit2 {
+                return true;
+            }
+        }
+        false
+    }
+
+    fn compact(&self) -> Mesh {
+        let mut map = vec![u32::MAX; self.pos.len()];
+        let mut out = Mesh::default();
+        for (t, tri) in self.tris.iter().enumerate() {
+            if !self.tri_alive[t] {
+                continue;
+            }
+            out.triangles.push(tri.map(|x| {
+                if map[x as usize] == u32::MAX {
+                    map[x as usize] = out.positions.len() as u32;
+                    out.positions.push(self.pos[x as usize]);
+                }
+                map[x as usize]
+            }));
+        }
+        out
+    }
+}
+
+/// Whether every voxel cell meeting the bounding box of `points` lies within `limit` of ∂W,
+/// decided per cell: a cell with a neighbour of the opposite class across a face lies within 1
+/// of ∂W, across an edge within √2 (the segment from any of its points to that neighbour leaves
+/// the cell's class, so it crosses ∂W). Sound; false means "not shown".
+pub fn cells_near_boundary(
+    cls: &Classifier,
+    points: impl Iterator<Item = DVec3>,
+    limit: f64,
+) -> bool {
+    if limit < 1.0 {
+        return false;
+    }
+    let use_edges = limit >= std::f64::consts::SQRT_2;
+    let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+    for p in points {
+        lo = lo.min(p);
+        hi = hi.max(p);
+    }
+    let (lo, hi) = (lo.floor(), hi.floor());
+    for k in lo.z as isize..=hi.z as isize {
+        for j in lo.y as isize..=hi.y as isize {
+            for i in lo.x as isize..=hi.x as isize {
+                let here = cls.inside(i, j, k);
+                let mut near = false;
+                'search: for dk in -1isize..=1 {
+                    for dj in -1isize..=1 {
+                        for di in -1isize..=1 {
+                            let steps = di.abs() + dj.abs() + dk.abs();
+                            if steps == 0 || steps == 3 || (steps == 2 && !use_edges) {
+                                continue;
+                            }
+                            if cls.inside(i + di, j + dj, k + dk) != here {
+                                near = true;
+                                break 'search;
+                            }
+                        }
+                    }
+                }
+                if !near {
+                    return false;
+                }
+            }
+        }
+    }
+    true
+}
+
+/// Points covering tetrahedron `t`: every point is within `r` of one. A barycentric lattice with
+/// k steps per edge splits it into small tetrahedra and octahedra whose vertices are lattice
+/// points; an octahedron's diagonal is (tᵢ - tⱼ - tₗ + t₀)/k, at most 2L/k, so every cell splits
+/// into simplices of diameter at most 2L/k. A point of a simplex of diameter D is within
+/// D·√(3/8) of its nearest vertex (Σλᵢ|p-vᵢ|² = Σ_{i<j} λᵢλⱼ|vᵢ-vⱼ|² <= D²·3/8), so
+/// k = ⌈2L·√(3/8)/r⌉ = ⌈L·√(3/2)/r⌉ suffices.
+pub fn cover_tetrahedron(t: [DVec3; 4], r: f64) -> impl Iterator<Item = DVec3> {
+    let mut longest: f64 = 0.0;
+    for i in 0..4 {
+        for j in i + 1..4 {
+            longest = longest.max((t[i] - t[j]).length());
+        }
+    }
+    let k = ((longest * 1.5f64.sqrt() / r).ceil() as usize).max(1);
+    (0..=k).flat_map(move |i| {
+        (0..=(k - i)).flat_map(move |j| {
+            (0..=(k - i - j)).map(move |l| {
+                let (a, b, c) = (
+                    i as f64 / k as f64,
+                    j as f64 / k as f64,
+                    l as f64 / k as f64,
+                );
+                t[0] + (t[1] - t[0]) * a + (t[2] - t[0]) * b + (t[3] - t[0]) * c
+            })
+        })
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::depth::{DepthImages, COLUMN_AXIS, ROW_AXIS};
+    use crate::extract::extract;
+    use crate::grid::Grid;
+
+    /// A classifier whose inside set is the box of voxels [lo, hi) in a grid of `dims`.
+    fn boxed(dims: [u32; 3], lo: [f32; 3], hi: [f32; 3]) -> Classifier {
+        let grid = Grid {
+            origin: [0.0; 3],
+            h: 1.0,
+            dims,
+        };
+        let mut images = DepthImages::empty(grid);
+        for img in images.images.iter_mut() {
+            let a = img.axis;
+            let (cu, rv) = (COLUMN_AXIS[a], ROW_AXIS[a]);
+            for rb in 0..img.height {
+                for col in 0..img.width {
+                    let (u, v) = (col as f32 + 0.5, rb as f32 + 0.5);
+                    if u > lo[cu] && u < hi[cu] && v > lo[rv] && v < hi[rv] {
+                        let i = img.index(col, rb);
+                        img.min[i] = lo[a] + 0.1;
+                        img.max[i] = hi[a] - 0.1;
+                    }
+                }
+            }
+        }
+        Classifier::new(&images)
+    }
+
+    fn defaults() -> SimplifyOptions {
+        SimplifyOptions {
+            eps: 0.866,
+            eps_sweep: 1.5,
+            sample_radius: 0.25,
+            sweep_sample_radius: 0.4,
+            target_triangles: 0,
+        }
+    }
+
+    #[test]
+    fn a_block_of_voxels_simplifies_to_a_box_of_twelve_triangles() {
+        let cls = boxed([8, 8, 8], [2.0, 2.0, 2.0], [6.0, 6.0, 6.0]);
+        let start = extract(&cls);
+        assert_eq!(start.triangles.len(), 6 * 16 * 2);
+        let (out, stats) = simplify(&start, &cls, defaults());
+        assert_eq!(out.triangles.len(), 12, "{stats:?}");
+        assert_eq!(out.positions.len(), 8);
+        assert!(out.unpaired_edges().is_empty());
+        assert!(
+            (out.volume() - 64.0).abs() < 1e-9,
+            "volume {}",
+            out.volume()
+        );
+    }
+
+    #[test]
+    fn one_voxel_cannot_lose_a_corner() {
+        // Any collapse of a cube's edge cuts off a corner by more than the band allows, or
+        // breaks the link condition: the 12 triangles stay.
+        let cls = boxed([3, 3, 3], [1.0, 1.0, 1.0], [2.0, 2.0, 2.0]);
+        let start = extract(&cls);
+        let (out, _) = simplify(
+            &start,
+            &cls,
+            SimplifyOptions {
+                eps: 0.3,
+                eps_sweep: 0.6,
+                sample_radius: 0.1,
+                sweep_sample_radius: 0.2,
+                target_triangles: 0,
+            },
+        );
+        assert_eq!(out.triangles.len(), 12);
+        assert!((out.volume() - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn target_count_stops_early() {
+        let cls = boxed([8, 8, 8], [2.0, 2.0, 2.0], [6.0, 6.0, 6.0]);
+        let start = extract(&cls);
+        let (out, _) = simplify(
+            &start,
+            &cls,
+            SimplifyOptions {
+                target_triangles: 100,
+                ..defaults()
+            },
+        );
+        assert!(
+            out.triangles.len() <= 100 && out.triangles.len() >= 98,
+            "{}",
+            out.triangles.len()
+        );
+        assert!(out.unpaired_edges().is_empty());
+    }
+
+    #[test]
+    fn tetrahedron_samples_cover_it() {
+        let t = [
+            DVec3::ZERO,
+            DVec3::new(3.0, 0.2, 0.1),
+            DVec3::new(0.5, 2.0, -0.3),
+            DVec3::new(1.0, 0.7, 2.5),
+        ];
+        let samples: Vec<DVec3> = cover_tetrahedron(t, 0.4).collect();
+        let mut seed = 3u64;
+        let mut rnd = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for _ in 0..20_000 {
+            let mut w = [rnd(), rnd(), rnd(), rnd()].map(|x| -x.max(1e-300).ln());
+            let sum: f64 = w.iter().sum();
+            w.iter_mut().for_each(|x| *x /= sum);
+            let p = t[0] * w[0] + t[1] * w[1] + t[2] * w[2] + t[3] * w[3];
+            let d = samples
+                .iter()
+                .map(|s| (*s - p).length())
+                .fold(f64::INFINITY, f64::min);
+            assert!(d <= 0.4, "{p} is {d} from every sample");
+        }
+    }
+}
