@@ -67,35 +67,11 @@ pub fn triangle_in_band(cls: &Classifier, t: [DVec3; 3], eps: f64, r: f64) -> bo
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::depth::DepthImages;
-    use crate::grid::Grid;
+    use crate::voxel::test_support::boxed as boxed_at;
 
-    /// A classifier whose inside set is the box [1, 4) x [1, 3) x [2, 5) of a 6x5x7 grid: every
-    /// ray through the box's footprint has its range set to the box.
+    /// The box [1, 4) x [1, 3) x [2, 5) of a 6x5x7 grid.
     fn boxed() -> Classifier {
-        let grid = Grid {
-            origin: [0.0; 3],
-            h: 1.0,
-            dims: [6, 5, 7],
-        };
-        let mut images = DepthImages::empty(grid);
-        let lo = [1.0f32, 1.0, 2.0];
-        let hi = [4.0f32, 3.0, 5.0];
-        for img in images.images.iter_mut() {
-            let a = img.axis;
-            let (cu, rv) = (crate::depth::COLUMN_AXIS[a], crate::depth::ROW_AXIS[a]);
-            for rb in 0..img.height {
-                for col in 0..img.width {
-                    let (u, v) = (col as f32 + 0.5, rb as f32 + 0.5);
-                    if u > lo[cu] && u < hi[cu] && v > lo[rv] && v < hi[rv] {
-                        let i = img.index(col, rb);
-                        img.min[i] = lo[a] + 0.1;
-                        img.max[i] = hi[a] - 0.1;
-                    }
-                }
-            }
-        }
-        Classifier::new(&images)
+        boxed_at([6, 5, 7], [1.0, 1.0, 2.0], [4.0, 3.0, 5.0])
     }
 
     /// Brute force: distance to the box surface [1,4]x[1,3]x[2,5].

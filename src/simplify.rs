@@ -549,34 +549,8 @@ pub fn cover_tetrahedron(t: [DVec3; 4], r: f64) -> impl Iterator<Item = DVec3> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::depth::{DepthImages, COLUMN_AXIS, ROW_AXIS};
     use crate::extract::extract;
-    use crate::grid::Grid;
-
-    /// A classifier whose inside set is the box of voxels [lo, hi) in a grid of `dims`.
-    fn boxed(dims: [u32; 3], lo: [f32; 3], hi: [f32; 3]) -> Classifier {
-        let grid = Grid {
-            origin: [0.0; 3],
-            h: 1.0,
-            dims,
-        };
-        let mut images = DepthImages::empty(grid);
-        for img in images.images.iter_mut() {
-            let a = img.axis;
-            let (cu, rv) = (COLUMN_AXIS[a], ROW_AXIS[a]);
-            for rb in 0..img.height {
-                for col in 0..img.width {
-                    let (u, v) = (col as f32 + 0.5, rb as f32 + 0.5);
-                    if u > lo[cu] && u < hi[cu] && v > lo[rv] && v < hi[rv] {
-                        let i = img.index(col, rb);
-                        img.min[i] = lo[a] + 0.1;
-                        img.max[i] = hi[a] - 0.1;
-                    }
-                }
-            }
-        }
-        Classifier::new(&images)
-    }
+    use crate::voxel::test_support::boxed;
 
     fn defaults() -> SimplifyOptions {
         SimplifyOptions {

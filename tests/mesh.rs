@@ -8,58 +8,27 @@ mod common;
 use std::path::Path;
 use std::process::Command;
 
-use common::{dist_to_set, posed_grid_triangles, winding_number, Rng, V3};
-use glam::{DMat4, DVec3, Vec3};
+use common::{
+    build, dist_to_set, posed_grid_triangles, random_rigid_poses, tetrahedron, winding_number, Rng,
+    V3,
+};
+use glam::{DMat4, DVec3};
+use sweptvol::depth::DepthImages;
 use sweptvol::extract::extract;
-use sweptvol::grid::{Accuracy, Overrides};
 use sweptvol::io::{gltf_in, gltf_out};
-use sweptvol::job::{self, SweepInput};
+use sweptvol::job::SweepInput;
 use sweptvol::mesh::Mesh;
-use sweptvol::model::{Generator, Part, Trajectory};
+use sweptvol::model::Generator;
 use sweptvol::simplify::{simplify, SimplifyOptions};
 use sweptvol::sweep::{cpu, Silent};
 use sweptvol::voxel::Classifier;
 
-fn generator(positions: Vec<[f32; 3]>, triangles: Vec<[u32; 3]>) -> Generator {
-    Generator {
-        parts: vec![Part {
-            node_index: 0,
-            node_name: Some("part".into()),
-            world: DMat4::IDENTITY,
-            positions: positions.into_iter().map(Vec3::from).collect(),
-            triangles,
-        }],
-        warnings: vec![],
-    }
-}
-
-fn sweep_mesh(g: &Generator, poses: &[DMat4], n: u32) -> (SweepInput, Mesh) {
-    let traj = Trajectory::whole_scene(poses);
-    let input = job::build(
-        g,
-        Path::new("g.glb"),
-        &traj,
-        Path::new("t.csv"),
-        Accuracy::Resolution(n),
-        Overrides::default(),
-    )
-    .unwrap();
+/// Sweep `g` along `poses` at resolution `n`: the input, the depth images and the voxel boundary.
+fn sweep_mesh(g: &Generator, poses: &[DMat4], n: u32) -> (SweepInput, DepthImages, Mesh) {
+    let input = build(g, poses, n);
     let images = cpu::sweep(&input, &Silent).unwrap();
     let mesh = extract(&Classifier::new(&images));
-    (input, mesh)
-}
-
-fn tetrahedron(rng: &mut Rng, size: f64) -> Generator {
-    let pos = (0..4)
-        .map(|_| {
-            [
-                rng.range(-size, size) as f32,
-                rng.range(-size, size) as f32,
-                rng.range(-size, size) as f32,
-            ]
-        })
-        .collect();
-    generator(pos, vec![[0, 1, 2], [0, 3, 1], [1, 3, 2], [2, 3, 0]])
+    (input, images, mesh)
 }
 
 /// Points on every posed triangle: vertices, edge points and interior points.
@@ -147,8 +116,8 @@ fn check_mesh_with(
 #[test]
 fn convex_part_at_one_pose() {
     let mut rng = Rng(3);
-    let g = tetrahedron(&mut rng, 0.5);
-    let (input, mesh) = sweep_mesh(&g, &[DMat4::IDENTITY], 28);
+    let g = tetrahedron(&mut rng, 0.5, [0.0; 3]);
+    let (input, _, mesh) = sweep_mesh(&g, &[DMat4::IDENTITY], 28);
     let tris = posed_grid_triangles(&g, &[DMat4::IDENTITY], &input);
     check_mesh(&input, &mesh, &tris, true, &mut rng);
 }
@@ -156,11 +125,11 @@ fn convex_part_at_one_pose() {
 #[test]
 fn part_translated_along_a_staircase_path() {
     let mut rng = Rng(4);
-    let g = tetrahedron(&mut rng, 0.3);
+    let g = tetrahedron(&mut rng, 0.3, [0.0; 3]);
     let poses: Vec<DMat4> = (0..6)
         .map(|k| DMat4::from_translation(DVec3::new(0.15 * k as f64, 0.1 * k as f64, 0.0)))
         .collect();
-    let (input, mesh) = sweep_mesh(&g, &poses, 36);
+    let (input, _, mesh) = sweep_mesh(&g, &poses, 36);
     let tris = posed_grid_triangles(&g, &poses, &input);
     check_mesh(&input, &mesh, &tris, true, &mut rng);
 }
@@ -169,23 +138,9 @@ fn part_translated_along_a_staircase_path() {
 fn random_parts_and_trajectories_are_enclosed() {
     for seed in 0..4u64 {
         let mut rng = Rng(100 + seed);
-        let g = tetrahedron(&mut rng, 0.4);
-        let poses: Vec<DMat4> = (0..(2 + rng.below(5)))
-            .map(|_| {
-                let axis = DVec3::new(
-                    rng.range(-1.0, 1.0),
-                    rng.range(-1.0, 1.0),
-                    rng.range(0.1, 1.0),
-                )
-                .normalize();
-                DMat4::from_translation(DVec3::new(
-                    rng.range(-1.0, 1.0),
-                    rng.range(-1.0, 1.0),
-                    rng.range(-1.0, 1.0),
-                )) * DMat4::from_axis_angle(axis, rng.range(-3.0, 3.0))
-            })
-            .collect();
-        let (input, mesh) = sweep_mesh(&g, &poses, 30);
+        let g = tetrahedron(&mut rng, 0.4, [0.0; 3]);
+        let poses = random_rigid_poses(&mut rng);
+        let (input, _, mesh) = sweep_mesh(&g, &poses, 30);
         let tris = posed_grid_triangles(&g, &poses, &input);
         // Random rotations can hide concavities from all six directions: enclosure and
         // clearance only.
@@ -196,8 +151,8 @@ fn random_parts_and_trajectories_are_enclosed() {
 #[test]
 fn glb_round_trip_and_khronos_validator() {
     let mut rng = Rng(9);
-    let g = tetrahedron(&mut rng, 0.5);
-    let (input, mesh) = sweep_mesh(&g, &[DMat4::IDENTITY, DMat4::from_rotation_z(0.5)], 24);
+    let g = tetrahedron(&mut rng, 0.5, [0.0; 3]);
+    let (input, _, mesh) = sweep_mesh(&g, &[DMat4::IDENTITY, DMat4::from_rotation_z(0.5)], 24);
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("t.swept.glb");
     gltf_out::write_glb(
@@ -252,21 +207,8 @@ fn check_simplified(
     visible: bool,
     seed: u64,
 ) -> (usize, usize) {
-    let (input, start) = sweep_mesh(g, poses, n);
-    let traj_images = {
-        let traj = Trajectory::whole_scene(poses);
-        let input2 = job::build(
-            g,
-            Path::new("g.glb"),
-            &traj,
-            Path::new("t.csv"),
-            Accuracy::Resolution(n),
-            Overrides::default(),
-        )
-        .unwrap();
-        cpu::sweep(&input2, &Silent).unwrap()
-    };
-    let cls = Classifier::new(&traj_images);
+    let (input, images, start) = sweep_mesh(g, poses, n);
+    let cls = Classifier::new(&images);
     let opts = simplify_options(&input);
     let (out, stats) = simplify(&start, &cls, opts);
     let tris = posed_grid_triangles(g, poses, &input);
@@ -278,13 +220,13 @@ fn check_simplified(
 #[test]
 fn simplified_meshes_keep_enclosure_clearance_and_bound() {
     let mut rng = Rng(3);
-    let g = tetrahedron(&mut rng, 0.5);
+    let g = tetrahedron(&mut rng, 0.5, [0.0; 3]);
     let (t0, t1) = check_simplified(&g, &[DMat4::IDENTITY], 28, true, 1);
     println!("convex part: {t0} -> {t1} triangles");
     assert!(t1 * 5 < t0, "{t0} -> {t1}: the simplifier barely worked");
 
     let mut rng = Rng(4);
-    let g = tetrahedron(&mut rng, 0.3);
+    let g = tetrahedron(&mut rng, 0.3, [0.0; 3]);
     let poses: Vec<DMat4> = (0..6)
         .map(|k| DMat4::from_translation(DVec3::new(0.15 * k as f64, 0.1 * k as f64, 0.0)))
         .collect();
@@ -293,22 +235,8 @@ fn simplified_meshes_keep_enclosure_clearance_and_bound() {
 
     for seed in 0..3u64 {
         let mut rng = Rng(100 + seed);
-        let g = tetrahedron(&mut rng, 0.4);
-        let poses: Vec<DMat4> = (0..(2 + rng.below(5)))
-            .map(|_| {
-                let axis = DVec3::new(
-                    rng.range(-1.0, 1.0),
-                    rng.range(-1.0, 1.0),
-                    rng.range(0.1, 1.0),
-                )
-                .normalize();
-                DMat4::from_translation(DVec3::new(
-                    rng.range(-1.0, 1.0),
-                    rng.range(-1.0, 1.0),
-                    rng.range(-1.0, 1.0),
-                )) * DMat4::from_axis_angle(axis, rng.range(-3.0, 3.0))
-            })
-            .collect();
+        let g = tetrahedron(&mut rng, 0.4, [0.0; 3]);
+        let poses = random_rigid_poses(&mut rng);
         let (t0, t1) = check_simplified(&g, &poses, 30, false, 10 + seed);
         println!("random {seed}: {t0} -> {t1} triangles");
     }

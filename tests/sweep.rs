@@ -5,42 +5,15 @@ mod common;
 
 use std::path::Path;
 
-use common::{check_samples, line_interval, posed_grid_triangles, Rng, V3};
-use glam::{DMat4, DVec3, Vec3};
+use common::{
+    build, check_samples, generator, line_interval, posed_grid_triangles, tetrahedron, Rng, V3,
+};
+use glam::{DMat4, DVec3};
 use sweptvol::depth::{DepthImages, COLUMN_AXIS, ROW_AXIS};
 use sweptvol::grid::{Accuracy, Overrides};
 use sweptvol::job::{self, SweepInput};
-use sweptvol::model::{Generator, Part, Pose, Trajectory};
+use sweptvol::model::{Generator, Pose, Trajectory};
 use sweptvol::sweep::{cpu, gpu::Gpu, Silent};
-
-fn generator(positions: Vec<[f32; 3]>, triangles: Vec<[u32; 3]>) -> Generator {
-    Generator {
-        parts: vec![Part {
-            node_index: 0,
-            node_name: Some("part".into()),
-            world: DMat4::IDENTITY,
-            positions: positions.into_iter().map(Vec3::from).collect(),
-            triangles,
-        }],
-        warnings: vec![],
-    }
-}
-
-fn trajectory(poses: &[DMat4]) -> Trajectory {
-    Trajectory::whole_scene(poses)
-}
-
-fn build(g: &Generator, poses: &[DMat4], resolution: u32) -> SweepInput {
-    job::build(
-        g,
-        Path::new("test.glb"),
-        &trajectory(poses),
-        Path::new("test.csv"),
-        Accuracy::Resolution(resolution),
-        Overrides::default(),
-    )
-    .expect("job builds")
-}
 
 /// For every pixel of every image: the computed interval contains the exact interval of the
 /// δ-offset (oracle) and lies inside the exact interval of the (δ + 2ρ)-offset.
@@ -194,7 +167,7 @@ fn degenerate_point_triangle_sweeps_a_ball() {
     let input = job::build(
         &g,
         Path::new("t.glb"),
-        &trajectory(&[DMat4::IDENTITY]),
+        &Trajectory::whole_scene(&[DMat4::IDENTITY]),
         Path::new("t.csv"),
         Accuracy::Tolerance(0.05),
         Overrides::default(),
@@ -320,20 +293,6 @@ fn closed_box_translated_along_a_line() {
     }
     assert!(hits > 200, "only {hits} pixels checked");
     check_against_oracle(&input, &images, &posed_grid_triangles(&g, &poses, &input));
-}
-
-/// A tetrahedron, off-centre, for the rotation and randomized tests.
-fn tetrahedron(rng: &mut Rng, size: f64, centre: [f64; 3]) -> Generator {
-    let pos: Vec<[f32; 3]> = (0..4)
-        .map(|_| {
-            [
-                (centre[0] + rng.range(-size, size)) as f32,
-                (centre[1] + rng.range(-size, size)) as f32,
-                (centre[2] + rng.range(-size, size)) as f32,
-            ]
-        })
-        .collect();
-    generator(pos, vec![[0, 1, 2], [0, 3, 1], [1, 3, 2], [2, 3, 0]])
 }
 
 #[test]

@@ -1,10 +1,13 @@
 //! Independent oracles for the tests: exact f64 geometry that shares no code with the sweep.
 #![allow(dead_code)]
 
-use glam::DMat4;
+use std::path::Path;
+
+use glam::{DMat4, DVec3, Vec3};
 use sweptvol::depth::{DepthImages, COLUMN_AXIS, ROW_AXIS};
-use sweptvol::job::SweepInput;
-use sweptvol::model::Generator;
+use sweptvol::grid::{Accuracy, Overrides};
+use sweptvol::job::{self, SweepInput};
+use sweptvol::model::{Generator, Part, Trajectory};
 
 pub type V3 = [f64; 3];
 
@@ -214,4 +217,59 @@ pub fn dist_to_set(p: V3, tris: &[[V3; 3]]) -> f64 {
     tris.iter()
         .map(|t| dist_triangle(p, *t))
         .fold(f64::INFINITY, f64::min)
+}
+
+/// A one-part generator at the identity, named "part".
+pub fn generator(positions: Vec<[f32; 3]>, triangles: Vec<[u32; 3]>) -> Generator {
+    Generator {
+        parts: vec![Part {
+            node_index: 0,
+            node_name: Some("part".into()),
+            world: DMat4::IDENTITY,
+            positions: positions.into_iter().map(Vec3::from).collect(),
+            triangles,
+        }],
+        warnings: vec![],
+    }
+}
+
+/// A random closed tetrahedron within `size` of `centre`.
+pub fn tetrahedron(rng: &mut Rng, size: f64, centre: [f64; 3]) -> Generator {
+    let pos: Vec<[f32; 3]> = (0..4)
+        .map(|_| std::array::from_fn(|c| (centre[c] + rng.range(-size, size)) as f32))
+        .collect();
+    generator(pos, vec![[0, 1, 2], [0, 3, 1], [1, 3, 2], [2, 3, 0]])
+}
+
+/// 2 to 6 random rigid poses: rotations about random axes, translations within 1.
+pub fn random_rigid_poses(rng: &mut Rng) -> Vec<DMat4> {
+    (0..(2 + rng.below(5)))
+        .map(|_| {
+            let axis = DVec3::new(
+                rng.range(-1.0, 1.0),
+                rng.range(-1.0, 1.0),
+                rng.range(0.1, 1.0),
+            )
+            .normalize();
+            let t = DVec3::new(
+                rng.range(-1.0, 1.0),
+                rng.range(-1.0, 1.0),
+                rng.range(-1.0, 1.0),
+            );
+            DMat4::from_translation(t) * DMat4::from_axis_angle(axis, rng.range(-3.0, 3.0))
+        })
+        .collect()
+}
+
+/// The sweep input for `g` moved whole along `poses`, at resolution `n`.
+pub fn build(g: &Generator, poses: &[DMat4], n: u32) -> SweepInput {
+    job::build(
+        g,
+        Path::new("test.glb"),
+        &Trajectory::whole_scene(poses),
+        Path::new("test.csv"),
+        Accuracy::Resolution(n),
+        Overrides::default(),
+    )
+    .expect("job builds")
 }
