@@ -315,7 +315,17 @@ impl State<'_> {
             .collect();
         let (na, nb) = (self.neighbours(a), self.neighbours(b));
         let common = na.iter().filter(|x| nb.binary_search(x).is_ok()).count();
-        if common != 2 || opposite[0] == opposite[1] {
+        // The edge part of the link condition: if triangles (a, c, d) and (b, c, d) both exist
+        // for the opposite vertices c, d (a tetrahedron-like component), the collapse would
+        // leave two coincident triangles enclosing nothing.
+        let (c, d) = (opposite[0] as u32, opposite[1] as u32);
+        let spans_cd = |v: usize| {
+            self.star[v].iter().any(|&t| {
+                let tri = self.tris[t as usize];
+                tri.contains(&c) && tri.contains(&d)
+            })
+        };
+        if common != 2 || c == d || (spans_cd(a) && spans_cd(b)) {
             self.stats.rejected_topology += 1;
             return false;
         }
@@ -597,6 +607,36 @@ mod tests {
         );
         assert_eq!(out.triangles.len(), 12);
         assert!((out.volume() - 1.0).abs() < 1e-12);
+    }
+
+    /// Review finding: small isolated components collapsed to two coincident triangles of
+    /// volume 0 (a tetrahedron's edge collapse) under the default band.
+    #[test]
+    fn small_components_never_collapse_to_coincident_triangles() {
+        for hi in [
+            [2.0, 2.0, 2.0],
+            [2.0, 2.0, 3.0],
+            [2.0, 2.0, 4.0],
+            [2.0, 3.0, 3.0],
+        ] {
+            let cls = boxed([4, 5, 6], [1.0, 1.0, 1.0], hi);
+            let (out, _) = simplify(&extract(&cls), &cls, defaults());
+            assert!(out.unpaired_edges().is_empty());
+            assert!(out.volume() > 0.1, "box to {hi:?}: volume {}", out.volume());
+            let mut keys: Vec<[u32; 3]> = out
+                .triangles
+                .iter()
+                .map(|t| {
+                    let mut k = *t;
+                    k.sort_unstable();
+                    k
+                })
+                .collect();
+            keys.sort_unstable();
+            let n = keys.len();
+            keys.dedup();
+            assert_eq!(keys.len(), n, "box to {hi:?}: duplicate triangles");
+        }
     }
 
     #[test]
