@@ -380,11 +380,8 @@ pub fn execute(
     // Every output is staged under a temporary name and all are renamed together at the end:
     // an error leaves nothing behind and never mixes old and new outputs.
     let mut staged = atomic::Staged::default();
-    let files: Vec<PathBuf> = job.outputs[1..7].to_vec();
-    for (k, path) in files.iter().enumerate() {
-        let side = if k % 2 == 0 { Side::Min } else { Side::Max };
-        exr_depth::write_depth_exr(&staged.path_for(path), &images, k / 2, side, &extra)?;
-    }
+    let files = exr_depth::stage_all(&mut staged, &opts.out_dir, &stem, &images, &extra)?;
+    debug_assert_eq!(files, job.outputs[1..7]);
     let secs = |a: Instant, b: Instant| (b - a).as_secs_f64();
     let eps_voxel = half_diag * h;
     let mesh_report = MeshReport {

@@ -15,7 +15,6 @@
 //! from its own attribute (binary f64, or text written with 17 significant digits), which
 //! round-trips exactly, after checking that the JSON agrees.
 
-use std::fs;
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, ensure, Context};
@@ -27,7 +26,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::depth::{image_size, DepthImage, DepthImages, AXIS_NAMES, COLUMN_AXIS, ROW_AXIS};
 use crate::grid::Grid;
-use crate::io::atomic::{commit, temp_sibling};
+use crate::io::atomic::Staged;
 
 /// Attribute holding the whole [`DepthMeta`] as JSON text.
 pub const META_ATTRIBUTE: &str = "sweptvol:meta";
@@ -229,9 +228,10 @@ pub fn write_depth_exr(
         .with_context(|| format!("cannot write {}", path.display()))
 }
 
-/// Write the six images into `dir` as `depth_file_name(stem, ..)`, x min first. Each file is
-/// written under a hidden temporary name, fsynced, then renamed into place.
-pub fn write_all(
+/// Stage the six images for `dir` under temporary names in `staged` (renamed into place by
+/// its `commit`), returning their final paths in order xmin, xmax, ymin, ymax, zmin, zmax.
+pub fn stage_all(
+    staged: &mut Staged,
     dir: &Path,
     stem: &str,
     images: &DepthImages,
@@ -241,20 +241,23 @@ pub fn write_all(
     for axis in 0..3 {
         for side in Side::BOTH {
             let path = dir.join(depth_file_name(stem, axis, side));
-            let tmp = temp_sibling(&path);
-            if let Err(err) = write_depth_exr(&tmp, images, axis, side, extra) {
-                // Best effort: the write error is what the user needs to see.
-                let _ = fs::remove_file(&tmp);
-                return Err(err);
-            }
-            commit(&tmp, &path)?;
+            write_depth_exr(&staged.path_for(&path), images, axis, side, extra)?;
             paths.push(path);
         }
     }
-    #[cfg(unix)]
-    fs::File::open(dir)
-        .and_then(|d| d.sync_all())
-        .with_context(|| format!("cannot sync directory {}", dir.display()))?;
+    Ok(paths)
+}
+
+/// Write the six images into `dir` atomically (see [`stage_all`]).
+pub fn write_all(
+    dir: &Path,
+    stem: &str,
+    images: &DepthImages,
+    extra: &ExtraMeta,
+) -> anyhow::Result<Vec<PathBuf>> {
+    let mut staged = Staged::default();
+    let paths = stage_all(&mut staged, dir, stem, images, extra)?;
+    staged.commit()?;
     Ok(paths)
 }
 
@@ -531,6 +534,7 @@ fn text_value(s: &str) -> anyhow::Result<AttributeValue> {
 mod tests {
     use super::*;
     use exr::prelude::{Compression, LineOrder};
+    use std::fs;
 
     const EXTRA: ExtraMeta = ExtraMeta {
         delta: 0.031_234_567_890_123_45,
