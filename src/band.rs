@@ -1,12 +1,19 @@
 //! The tolerance band around the voxel boundary: exact local distances from points to ∂W (W the
-//! union of inside voxels) and the sampled, sound test "every point of a triangle is within ε of
-//! ∂W" that the simplifier's checks are built on (docs/design.md).
+//! union of inside voxels) and the sound region tests the simplifier's checks are built on
+//! (docs/design.md).
 //!
 //! Units: grid units throughout (one voxel edge = 1).
+
+use std::collections::HashMap;
+use std::hash::{BuildHasherDefault, Hasher};
 
 use glam::DVec3;
 
 use crate::voxel::Classifier;
+
+/// Distances are exact below this (the memo covers the 5×5×5 voxels around a point's voxel; a
+/// voxel three steps away is at least 2 from any point of the middle one).
+pub const REACH: f64 = 2.0;
 
 /// Distance from `p` to the voxel cube `v` (closed unit cube at integer corner `v`).
 fn dist_to_cube(p: DVec3, v: [isize; 3]) -> f64 {
@@ -19,8 +26,9 @@ fn dist_to_cube(p: DVec3, v: [isize; 3]) -> f64 {
     d2.sqrt()
 }
 
-/// The exact distance from `p` to ∂W when it is at most `limit`, else None (farther). Only
-/// voxels within `limit` of `p` are visited: (2⌈limit⌉+1)³ at most.
+/// The exact distance from `p` to ∂W when it is at most `limit`, else None (farther). Brute
+/// force over the (2⌈limit⌉+1)³ voxels around `p`: the reference the memoized queries are
+/// tested against.
 pub fn dist_to_boundary(cls: &Classifier, p: DVec3, limit: f64) -> Option<f64> {
     let home = p.floor();
     let here = cls.inside(home.x as isize, home.y as isize, home.z as isize);
@@ -39,35 +47,180 @@ pub fn dist_to_boundary(cls: &Classifier, p: DVec3, limit: f64) -> Option<f64> {
     (best <= limit).then_some(best)
 }
 
-/// Points covering triangle `t`: every point of `t` is within `r` of one of them. A barycentric
-/// grid with k steps per edge splits `t` into k² triangles similar to `t`, each with edges at
-/// most L/k; a triangle's points are within (longest edge)/√3 of its nearest vertex.
-pub fn cover_triangle(t: [DVec3; 3], r: f64) -> impl Iterator<Item = DVec3> {
-    let longest = (t[1] - t[0])
-        .length()
-        .max((t[2] - t[1]).length())
-        .max((t[0] - t[2]).length());
-    let k = ((longest / (r * 3f64.sqrt())).ceil() as usize).max(1);
-    (0..=k).flat_map(move |i| {
-        (0..=(k - i)).map(move |j| {
-            let (a, b) = (i as f64 / k as f64, j as f64 / k as f64);
-            t[0] + (t[1] - t[0]) * a + (t[2] - t[0]) * b
-        })
-    })
+/// Multiplicative hash for packed voxel keys (the std SipHash dominated the profile).
+#[derive(Default)]
+struct KeyHasher(u64);
+
+impl Hasher for KeyHasher {
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.write_u64(b as u64);
+        }
+    }
+    fn write_u64(&mut self, x: u64) {
+        self.0 = (self.0.rotate_left(5) ^ x).wrapping_mul(0x517c_c1b7_2722_0a95);
+    }
+    fn finish(&self) -> u64 {
+        self.0.rotate_left(26)
+    }
 }
 
-/// Sound test that every point of triangle `t` is within `eps` of ∂W: each covering sample
-/// (radius `r` < `eps`) must be within `eps - r`. May reject a triangle that is within the band;
-/// never accepts one that is not.
-pub fn triangle_in_band(cls: &Classifier, t: [DVec3; 3], eps: f64, r: f64) -> bool {
-    debug_assert!(r > 0.0 && r < eps);
-    cover_triangle(t, r).all(|s| dist_to_boundary(cls, s, eps - r).is_some())
+/// Offset index n of the 5×5×5 block (n = 25(dk+2) + 5(dj+2) + di+2) split per axis.
+const BLOCK: [[u8; 3]; 125] = {
+    let mut t = [[0u8; 3]; 125];
+    let mut n = 0;
+    while n < 125 {
+        t[n] = [(n % 5) as u8, (n / 5 % 5) as u8, (n / 25) as u8];
+        n += 1;
+    }
+    t
+};
+
+/// Memoized distances to ∂W near the voxel boundary: per visited voxel, the set of voxels of the
+/// other class in its 5×5×5 block (bit n as in [`BLOCK`]).
+pub struct Proximity<'c> {
+    cls: &'c Classifier,
+    opposite: HashMap<u64, u128, BuildHasherDefault<KeyHasher>>,
+}
+
+/// Nodes one region test may visit before it gives up (and rejects, which is always sound).
+const NODE_BUDGET: usize = 4096;
+
+impl<'c> Proximity<'c> {
+    pub fn new(cls: &'c Classifier) -> Self {
+        Proximity {
+            cls,
+            opposite: HashMap::default(),
+        }
+    }
+
+    /// Voxels visited so far (memory: about 40 bytes each).
+    pub fn memo_len(&self) -> usize {
+        self.opposite.len()
+    }
+
+    fn mask(&mut self, v: [isize; 3]) -> u128 {
+        // Keys pack i+2, j+2, k+2 in 21 bits each (the grid is at most 12288 voxels wide).
+        let key = (v[0] + 2) as u64 | ((v[1] + 2) as u64) << 21 | ((v[2] + 2) as u64) << 42;
+        let cls = self.cls;
+        *self.opposite.entry(key).or_insert_with(|| {
+            let here = cls.inside(v[0], v[1], v[2]);
+            let mut m = 0u128;
+            for (n, o) in BLOCK.iter().enumerate() {
+                let [di, dj, dk] = o.map(|x| x as isize - 2);
+                if cls.inside(v[0] + di, v[1] + dj, v[2] + dk) != here {
+                    m |= 1 << n;
+                }
+            }
+            m
+        })
+    }
+
+    /// Squared per-axis gaps from `p` (in its voxel `v`) to the cubes at offsets -2..=2.
+    fn gaps(p: DVec3, v: DVec3) -> [[f64; 5]; 3] {
+        let l = p - v; // in [0, 1)³
+        [l.x, l.y, l.z].map(|l| [l + 1.0, l, 0.0, 1.0 - l, 2.0 - l].map(|g| g * g))
+    }
+
+    /// dist(p, ∂W) when it is below [`REACH`], else REACH; and whether p's voxel is inside W.
+    pub fn distance(&mut self, p: DVec3) -> (f64, bool) {
+        let v = p.floor();
+        let key = [v.x as isize, v.y as isize, v.z as isize];
+        let mut bits = self.mask(key);
+        let inside = self.cls.inside(key[0], key[1], key[2]);
+        let g = Self::gaps(p, v);
+        let mut best = REACH * REACH;
+        while bits != 0 {
+            let [i, j, k] = BLOCK[bits.trailing_zeros() as usize];
+            bits &= bits - 1;
+            best = best.min(g[0][i as usize] + g[1][j as usize] + g[2][k as usize]);
+        }
+        (best.sqrt(), inside)
+    }
+
+    /// Whether every point of triangle `t` is within `limit` (< REACH) of ∂W. Adaptive: a piece
+    /// with centroid c and circumradius R about c passes when dist(c) + R ≤ limit (distance is
+    /// 1-Lipschitz); it fails when dist(c) > limit (c itself is out) or R < `r_min` (not shown).
+    /// Pieces split into four by their edge midpoints. Sound: may reject, never wrongly accepts.
+    pub fn triangle_within(&mut self, t: [DVec3; 3], limit: f64, r_min: f64) -> bool {
+        debug_assert!(limit < REACH && r_min > 0.0);
+        let mut stack = vec![t];
+        let mut visited = 0;
+        while let Some(t) = stack.pop() {
+            visited += 1;
+            if visited > NODE_BUDGET {
+                return false;
+            }
+            let c = (t[0] + t[1] + t[2]) / 3.0;
+            let r = t.iter().map(|x| (*x - c).length()).fold(0.0, f64::max);
+            let (d, _) = self.distance(c);
+            if d + r <= limit {
+                continue;
+            }
+            if d > limit || r < r_min {
+                return false;
+            }
+            let m = [
+                (t[0] + t[1]) / 2.0,
+                (t[1] + t[2]) / 2.0,
+                (t[2] + t[0]) / 2.0,
+            ];
+            stack.extend([
+                [t[0], m[0], m[2]],
+                [m[0], t[1], m[1]],
+                [m[2], m[1], t[2]],
+                [m[0], m[1], m[2]],
+            ]);
+        }
+        true
+    }
+
+    /// Whether tetrahedron `t` misses every point inside W deeper than `limit` (< REACH) below
+    /// ∂W. A piece (centroid c, circumradius R about c) passes when dist(c) + R ≤ limit, or when
+    /// c lies outside W with dist(c) ≥ R (the open ball then holds no point of W); it fails when
+    /// c is inside W deeper than `limit`, or R < `r_min`. Pieces split in two at the midpoint of
+    /// their longest edge. Sound: may reject, never wrongly accepts.
+    pub fn tetrahedron_shallow(&mut self, t: [DVec3; 4], limit: f64, r_min: f64) -> bool {
+        debug_assert!(limit < REACH && r_min > 0.0);
+        let mut stack = vec![t];
+        let mut visited = 0;
+        while let Some(t) = stack.pop() {
+            visited += 1;
+            if visited > NODE_BUDGET {
+                return false;
+            }
+            let c = (t[0] + t[1] + t[2] + t[3]) / 4.0;
+            let r = t.iter().map(|x| (*x - c).length()).fold(0.0, f64::max);
+            let (d, inside) = self.distance(c);
+            if d + r <= limit || (!inside && d >= r) {
+                continue;
+            }
+            if (inside && d > limit) || r < r_min {
+                return false;
+            }
+            let (mut a, mut b, mut longest) = (0, 1, -1.0);
+            for i in 0..4 {
+                for j in i + 1..4 {
+                    let l = (t[i] - t[j]).length_squared();
+                    if l > longest {
+                        (a, b, longest) = (i, j, l);
+                    }
+                }
+            }
+            let m = (t[a] + t[b]) / 2.0;
+            let (mut left, mut right) = (t, t);
+            left[a] = m;
+            right[b] = m;
+            stack.extend([left, right]);
+        }
+        true
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::voxel::test_support::boxed as boxed_at;
+    use crate::voxel::test_support::{boxed as boxed_at, random as random_at};
 
     /// The box [1, 4) x [1, 3) x [2, 5) of a 6x5x7 grid.
     fn boxed() -> Classifier {
@@ -111,50 +264,170 @@ mod tests {
         }
     }
 
+    /// Uniform random points of a simplex (barycentric weights from exponentials).
+    fn simplex_point<const N: usize>(v: [DVec3; N], rnd: &mut impl FnMut() -> f64) -> DVec3 {
+        let w: [f64; N] = std::array::from_fn(|_| -rnd().max(1e-300).ln());
+        let sum: f64 = w.iter().sum();
+        v.iter().zip(w).map(|(p, w)| *p * (w / sum)).sum()
+    }
+
+    fn lcg(seed: u64) -> impl FnMut() -> f64 {
+        let mut s = seed;
+        move || {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (s >> 11) as f64 / (1u64 << 53) as f64
+        }
+    }
+
     #[test]
-    fn covering_samples_reach_every_point() {
-        let t = [
-            DVec3::ZERO,
-            DVec3::new(7.0, 0.5, 0.0),
-            DVec3::new(-2.0, 0.3, 1.0),
-        ];
-        let samples: Vec<DVec3> = cover_triangle(t, 0.25).collect();
-        for i in 0..=60 {
-            for j in 0..=(60 - i) {
-                let p =
-                    t[0] + (t[1] - t[0]) * (i as f64 / 60.0) + (t[2] - t[0]) * (j as f64 / 60.0);
-                let d = samples
-                    .iter()
-                    .map(|s| (*s - p).length())
-                    .fold(f64::INFINITY, f64::min);
-                assert!(d <= 0.25 + 1e-12, "{p} is {d} from every sample");
+    fn memoized_distance_matches_brute_force() {
+        for seed in 0..4 {
+            let cls = random_at([14, 12, 13], seed);
+            let mut prox = Proximity::new(&cls);
+            let mut rnd = lcg(seed + 100);
+            let mut near = 0;
+            for _ in 0..20_000 {
+                let p = DVec3::new(rnd() * 16.0 - 1.0, rnd() * 14.0 - 1.0, rnd() * 15.0 - 1.0);
+                let (d, inside) = prox.distance(p);
+                let f = p.floor();
+                assert_eq!(inside, cls.inside(f.x as isize, f.y as isize, f.z as isize));
+                match dist_to_boundary(&cls, p, REACH) {
+                    Some(exact) if exact < REACH => {
+                        near += 1;
+                        assert!((d - exact).abs() < 1e-12, "{p}: {d} vs {exact}");
+                    }
+                    _ => assert_eq!(d, REACH, "{p}: {d}, brute force finds nothing nearer"),
+                }
             }
+            assert!(
+                near > 5000,
+                "seed {seed}: only {near} points near the boundary"
+            );
         }
     }
 
     #[test]
     fn band_test_accepts_near_triangles_and_rejects_far_ones() {
         let cls = boxed();
+        let mut prox = Proximity::new(&cls);
         // On the box's top face z = 5, slightly lifted: inside the band.
         let near = [
             DVec3::new(1.2, 1.2, 5.3),
             DVec3::new(3.8, 1.2, 5.3),
             DVec3::new(1.2, 2.8, 4.8),
         ];
-        assert!(triangle_in_band(&cls, near, 0.866, 0.25));
+        assert!(prox.triangle_within(near, 0.866, 0.05));
         // One corner 0.9 above the face: outside a band of 0.866, must be refused.
         let far = [
             DVec3::new(1.2, 1.2, 5.9),
             DVec3::new(3.8, 1.2, 5.3),
             DVec3::new(1.2, 2.8, 5.3),
         ];
-        assert!(!triangle_in_band(&cls, far, 0.866, 0.25));
+        assert!(!prox.triangle_within(far, 0.866, 0.05));
         // Cutting through the box's middle: deep inside, refused.
         let deep = [
             DVec3::new(1.5, 1.5, 3.5),
             DVec3::new(3.5, 1.5, 3.5),
             DVec3::new(2.5, 2.5, 3.5),
         ];
-        assert!(!triangle_in_band(&cls, deep, 0.866, 0.25));
+        assert!(!prox.triangle_within(deep, 0.866, 0.05));
+    }
+
+    /// Random triangles near random voxel sets: whatever the test accepts has every sampled
+    /// point within the band by brute force, and it accepts and rejects both.
+    #[test]
+    fn triangle_test_is_sound_on_random_voxel_sets() {
+        let (mut accepted, mut rejected) = (0, 0);
+        for seed in 0..3 {
+            let cls = random_at([14, 14, 14], seed);
+            let mut prox = Proximity::new(&cls);
+            let mut rnd = lcg(seed + 7);
+            for _ in 0..3000 {
+                let c = DVec3::new(rnd(), rnd(), rnd()) * 14.0;
+                let size = 0.2 + 3.0 * rnd();
+                let t: [DVec3; 3] =
+                    std::array::from_fn(|_| c + (DVec3::new(rnd(), rnd(), rnd()) - 0.5) * size);
+                if !prox.triangle_within(t, 0.866, 0.05) {
+                    rejected += 1;
+                    continue;
+                }
+                accepted += 1;
+                for k in 0..300 {
+                    let p = if k < 3 {
+                        t[k]
+                    } else {
+                        simplex_point(t, &mut rnd)
+                    };
+                    assert!(
+                        dist_to_boundary(&cls, p, 0.866).is_some(),
+                        "{t:?} accepted but {p} is out of the band"
+                    );
+                }
+            }
+        }
+        assert!(
+            accepted > 300 && rejected > 300,
+            "{accepted} accepted, {rejected} rejected"
+        );
+    }
+
+    /// Random tetrahedra: whatever the test accepts holds no sampled point of W deeper than the
+    /// limit; one reaching a box's middle is rejected; one entirely outside passes.
+    #[test]
+    fn tetrahedron_test_is_sound_on_random_voxel_sets() {
+        let (mut accepted, mut rejected) = (0, 0);
+        for seed in 0..3 {
+            let cls = random_at([20, 20, 20], seed + 10);
+            let mut prox = Proximity::new(&cls);
+            let mut rnd = lcg(seed + 70);
+            for _ in 0..2000 {
+                let c = DVec3::splat(3.0) + DVec3::new(rnd(), rnd(), rnd()) * 14.0;
+                let size = 0.2 + 4.0 * rnd();
+                let t: [DVec3; 4] =
+                    std::array::from_fn(|_| c + (DVec3::new(rnd(), rnd(), rnd()) - 0.5) * size);
+                if !prox.tetrahedron_shallow(t, 1.5, 0.05) {
+                    rejected += 1;
+                    continue;
+                }
+                accepted += 1;
+                for k in 0..400 {
+                    let p = if k < 4 {
+                        t[k]
+                    } else {
+                        simplex_point(t, &mut rnd)
+                    };
+                    let f = p.floor();
+                    if cls.inside(f.x as isize, f.y as isize, f.z as isize) {
+                        assert!(
+                            dist_to_boundary(&cls, p, 1.5).is_some(),
+                            "{t:?} accepted but {p} is deeper than 1.5 inside W"
+                        );
+                    }
+                }
+            }
+        }
+        assert!(
+            accepted > 300 && rejected > 300,
+            "{accepted} accepted, {rejected} rejected"
+        );
+
+        let cls = boxed_at([9, 9, 9], [1.0, 1.0, 1.0], [8.0, 8.0, 8.0]);
+        let mut prox = Proximity::new(&cls);
+        // Flat on the top face z = 8, reaching 1.2 below it: passes.
+        let flat = [
+            DVec3::new(1.5, 1.5, 8.3),
+            DVec3::new(7.5, 1.5, 8.3),
+            DVec3::new(1.5, 7.5, 8.3),
+            DVec3::new(4.0, 4.0, 6.8),
+        ];
+        assert!(prox.tetrahedron_shallow(flat, 1.5, 0.05));
+        // The same with its apex at the box's middle, 3.5 deep: refused.
+        let deep = [flat[0], flat[1], flat[2], DVec3::new(4.5, 4.5, 4.5)];
+        assert!(!prox.tetrahedron_shallow(deep, 1.5, 0.05));
+        // Outside the box, far from it: passes (no point of W at all).
+        let away = DVec3::new(-6.0, 0.0, 0.0);
+        assert!(prox.tetrahedron_shallow(deep.map(|p| p + away), 1.5, 0.05));
     }
 }

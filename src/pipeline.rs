@@ -18,12 +18,12 @@ use crate::simplify::{simplify, SimplifyOptions, SimplifyStats};
 use crate::sweep::{cpu, gpu::Gpu, Observer};
 use crate::voxel::Classifier;
 
-/// Covering radius of the samples that decide the simplifier's band tests, voxels.
-const SAMPLE_RADIUS_VOXELS: f64 = 0.25;
-/// Covering radius of the samples that decide the swept-region test, voxels.
-const SWEEP_SAMPLE_RADIUS_VOXELS: f64 = 0.4;
+/// Smallest piece the simplifier's adaptive region tests refine to before rejecting, voxels.
+const MIN_RADIUS_VOXELS: f64 = 0.05;
 /// Kept between the swept region's band and the limit δ - √3h/2, voxels.
 const SWEEP_MARGIN_VOXELS: f64 = 0.05;
+/// Widest band the simplifier decides (exact distances reach 2 voxels), voxels.
+const BAND_CAP_VOXELS: f64 = crate::band::REACH - 0.05;
 
 /// Which sweep implementation runs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, Serialize, serde::Deserialize)]
@@ -339,15 +339,15 @@ pub fn execute(
     let h = input.grid.h;
     let half_diag = 3f64.sqrt() / 2.0; // voxels
     let band = SimplifyOptions {
-        eps: input.params.epsilon / h,
-        eps_sweep: input.params.delta / h - half_diag - SWEEP_MARGIN_VOXELS,
-        sample_radius: SAMPLE_RADIUS_VOXELS,
-        sweep_sample_radius: SWEEP_SAMPLE_RADIUS_VOXELS,
+        // Bands past the proximity memo's reach are clamped: narrower bands stay sound.
+        eps: (input.params.epsilon / h).min(BAND_CAP_VOXELS),
+        eps_sweep: (input.params.delta / h - half_diag - SWEEP_MARGIN_VOXELS).min(BAND_CAP_VOXELS),
+        min_radius: MIN_RADIUS_VOXELS,
         target_triangles: opts.target_triangles,
     };
     // Soundness (docs/design.md): a point within eps of the voxel boundary is at least
     // δ - √3h/2 - eps from the swept volume.
-    if band.eps + half_diag >= input.params.delta / h || band.eps <= band.sample_radius {
+    if band.eps + half_diag >= input.params.delta / h || band.eps <= band.min_radius {
         bail!(
             "ε = {} is too large for δ = {}: the simplifier needs ε + √3h/2 < δ; lower --epsilon or raise --delta",
             input.params.epsilon,

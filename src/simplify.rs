@@ -1,12 +1,12 @@
 //! Bounded simplification of the voxel boundary by edge collapses (paper section 5), with the
 //! sound checks argued in docs/design.md:
 //!
-//! - tolerance: every new triangle lies within `eps` of ∂W (sampled with a proven covering
-//!   radius), so it stays at least δ - √3/2 - eps outside the swept volume and within
-//!   eps + √3/2 + δ of it where concavities are visible;
-//! - sweep: every tetrahedron joining an old triangle around the edge to the new vertex lies
-//!   within `eps_sweep` of ∂W (eps_sweep + √3/2 < δ), so the surface never passes over a point
-//!   of the swept volume and every such point stays enclosed;
+//! - tolerance: every new triangle lies within `eps` of ∂W (adaptive pieces with exact
+//!   distances, [`Proximity::triangle_within`]), so it stays at least δ - √3/2 - eps outside the
+//!   swept volume and within eps + √3/2 + δ of it where concavities are visible;
+//! - sweep: every tetrahedron joining an old triangle around the edge to the new vertex holds no
+//!   point of W deeper than `eps_sweep` (eps_sweep + √3/2 < δ), so the surface never passes over
+//!   a point of the swept volume and every such point stays enclosed;
 //! - topology: only edges with two faces whose endpoints are manifold and satisfy the link
 //!   condition collapse, so the mesh stays watertight and no fan is torn; no face may flip.
 //!
@@ -18,7 +18,7 @@ use std::collections::BinaryHeap;
 
 use glam::{DMat3, DVec3};
 
-use crate::band::{cover_triangle, dist_to_boundary};
+use crate::band::{self, Proximity};
 use crate::mesh::Mesh;
 use crate::voxel::Classifier;
 
@@ -29,10 +29,8 @@ pub struct SimplifyOptions {
     pub eps: f64,
     /// Band half-width for the region swept by a collapse (must satisfy eps_sweep + √3/2 < δ).
     pub eps_sweep: f64,
-    /// Covering radius of the samples that decide the band test (smaller than eps).
-    pub sample_radius: f64,
-    /// Covering radius of the samples that decide the sweep test (smaller than eps_sweep).
-    pub sweep_sample_radius: f64,
+    /// Smallest piece radius the adaptive region tests refine to before they reject.
+    pub min_radius: f64,
     /// Stop once the mesh has at most this many triangles (the checks always win).
     pub target_triangles: usize,
 }
@@ -140,10 +138,7 @@ impl Ord for Candidate {
 }
 
 struct State<'c> {
-    cls: &'c Classifier,
-    /// Per visited voxel: bit n set when voxel n of the 5x5x5 block around it (n = 25(dk+2) +
-    /// 5(dj+2) + di+2) has the other class. Enough for distances below two voxels.
-    opposite: std::collections::HashMap<[isize; 3], u128>,
+    prox: Proximity<'c>,
     opts: SimplifyOptions,
     pos: Vec<DVec3>,
     tris: Vec<[u32; 3]>,
@@ -159,12 +154,10 @@ struct State<'c> {
 
 /// Simplify `mesh` (the voxel boundary of `cls`) within the bands of `opts`.
 pub fn simplify(mesh: &Mesh, cls: &Classifier, opts: SimplifyOptions) -> (Mesh, SimplifyStats) {
-    assert!(opts.sample_radius > 0.0 && opts.sample_radius < opts.eps);
-    assert!(opts.sweep_sample_radius > 0.0 && opts.sweep_sample_radius < opts.eps_sweep);
+    assert!(opts.min_radius > 0.0 && opts.eps < band::REACH && opts.eps_sweep < band::REACH);
     let n = mesh.positions.len();
     let mut s = State {
-        cls,
-        opposite: std::collections::HashMap::new(),
+        prox: Proximity::new(cls),
         opts,
         pos: mesh.positions.clone(),
         tris: mesh.triangles.clone(),
@@ -369,28 +362,26 @@ impl State<'_> {
                 return false;
             }
         }
-        // Tolerance band for the new surface.
-        let (eps, r) = (self.opts.eps, self.opts.sample_radius);
-        for (_, q) in &changed {
-            if !cover_triangle(*q, r).all(|s| self.near_boundary(s, eps - r)) {
-                self.stats.rejected_band += 1;
-                return false;
-            }
+        // Tolerance band for the new surface; the new vertex first, the likeliest to be out.
+        let (eps, r_min) = (self.opts.eps, self.opts.min_radius);
+        if self.prox.distance(v).0 > eps
+            || !changed
+                .iter()
+                .all(|(_, q)| self.prox.triangle_within(*q, eps, r_min))
+        {
+            self.stats.rejected_band += 1;
+            return false;
         }
-        // The region swept by the collapse: tetrahedra (old triangle, v). First the cheap
-        // certificate over the cells of their common bounding box, then per tetrahedron, then
-        // samples.
+        // The region swept by the collapse: the tetrahedra (old triangle, v) must hold no point
+        // of W deeper than eps_sweep, hence no point of the swept volume.
         let es = self.opts.eps_sweep;
-        let tets: Vec<[DVec3; 4]> = old.iter().map(|p| [p[0], p[1], p[2], v]).collect();
-        if !cells_near_boundary(self.cls, tets.iter().flatten().copied(), es) {
-            let rs = self.opts.sweep_sample_radius;
-            for t in &tets {
-                if !cells_near_boundary(self.cls, t.iter().copied(), es)
-                    && !cover_tetrahedron(*t, rs).all(|s| self.near_boundary(s, es - rs))
-                {
-                    self.stats.rejected_sweep += 1;
-                    return false;
-                }
+        for p in &old {
+            if !self
+                .prox
+                .tetrahedron_shallow([p[0], p[1], p[2], v], es, r_min)
+            {
+                self.stats.rejected_sweep += 1;
+                return false;
             }
         }
 
@@ -420,48 +411,6 @@ impl State<'_> {
         true
     }
 
-    /// Whether `p` is within `limit` (< 2) of ∂W: [`dist_to_boundary`] through the per-voxel
-    /// memo of opposite-class voxels (a voxel three steps away is at least 2 from p).
-    fn near_boundary(&mut self, p: DVec3, limit: f64) -> bool {
-        if limit >= 2.0 {
-            return dist_to_boundary(self.cls, p, limit).is_some();
-        }
-        let v = p.floor();
-        let key = [v.x as isize, v.y as isize, v.z as isize];
-        let cls = self.cls;
-        let mask = *self.opposite.entry(key).or_insert_with(|| {
-            let here = cls.inside(key[0], key[1], key[2]);
-            let mut m = 0u128;
-            for n in 0..125isize {
-                let (di, dj, dk) = (n % 5 - 2, n / 5 % 5 - 2, n / 25 - 2);
-                if cls.inside(key[0] + di, key[1] + dj, key[2] + dk) != here {
-                    m |= 1 << n;
-                }
-            }
-            m
-        });
-        let limit2 = limit * limit;
-        let local = p - v; // in [0, 1)³
-        let mut bits = mask;
-        while bits != 0 {
-            let n = bits.trailing_zeros() as i32;
-            bits &= bits - 1;
-            let off = DVec3::new(
-                (n % 5 - 2) as f64,
-                (n / 5 % 5 - 2) as f64,
-                (n / 25 - 2) as f64,
-            );
-            // Distance from `local` to the unit cube at `off`.
-            let g = (off - local)
-                .max(local - (off + DVec3::ONE))
-                .max(DVec3::ZERO);
-            if g.length_squared() <= limit2 {
-                return true;
-            }
-        }
-        false
-    }
-
     fn compact(&self) -> Mesh {
         let mut map = vec![u32::MAX; self.pos.len()];
         let mut out = Mesh::default();
@@ -481,81 +430,6 @@ impl State<'_> {
     }
 }
 
-/// Whether every voxel cell meeting the bounding box of `points` lies within `limit` of ∂W,
-/// decided per cell: a cell with a neighbour of the opposite class across a face lies within 1
-/// of ∂W, across an edge within √2 (the segment from any of its points to that neighbour leaves
-/// the cell's class, so it crosses ∂W). Sound; false means "not shown".
-pub fn cells_near_boundary(
-    cls: &Classifier,
-    points: impl Iterator<Item = DVec3>,
-    limit: f64,
-) -> bool {
-    if limit < 1.0 {
-        return false;
-    }
-    let use_edges = limit >= std::f64::consts::SQRT_2;
-    let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
-    for p in points {
-        lo = lo.min(p);
-        hi = hi.max(p);
-    }
-    let (lo, hi) = (lo.floor(), hi.floor());
-    for k in lo.z as isize..=hi.z as isize {
-        for j in lo.y as isize..=hi.y as isize {
-            for i in lo.x as isize..=hi.x as isize {
-                let here = cls.inside(i, j, k);
-                let mut near = false;
-                'search: for dk in -1isize..=1 {
-                    for dj in -1isize..=1 {
-                        for di in -1isize..=1 {
-                            let steps = di.abs() + dj.abs() + dk.abs();
-                            if steps == 0 || steps == 3 || (steps == 2 && !use_edges) {
-                                continue;
-                            }
-                            if cls.inside(i + di, j + dj, k + dk) != here {
-                                near = true;
-                                break 'search;
-                            }
-                        }
-                    }
-                }
-                if !near {
-                    return false;
-                }
-            }
-        }
-    }
-    true
-}
-
-/// Points covering tetrahedron `t`: every point is within `r` of one. A barycentric lattice with
-/// k steps per edge splits it into small tetrahedra and octahedra whose vertices are lattice
-/// points; an octahedron's diagonal is (tᵢ - tⱼ - tₗ + t₀)/k, at most 2L/k, so every cell splits
-/// into simplices of diameter at most 2L/k. A point of a simplex of diameter D is within
-/// D·√(3/8) of its nearest vertex (Σλᵢ|p-vᵢ|² = Σ_{i<j} λᵢλⱼ|vᵢ-vⱼ|² <= D²·3/8), so
-/// k = ⌈2L·√(3/8)/r⌉ = ⌈L·√(3/2)/r⌉ suffices.
-pub fn cover_tetrahedron(t: [DVec3; 4], r: f64) -> impl Iterator<Item = DVec3> {
-    let mut longest: f64 = 0.0;
-    for i in 0..4 {
-        for j in i + 1..4 {
-            longest = longest.max((t[i] - t[j]).length());
-        }
-    }
-    let k = ((longest * 1.5f64.sqrt() / r).ceil() as usize).max(1);
-    (0..=k).flat_map(move |i| {
-        (0..=(k - i)).flat_map(move |j| {
-            (0..=(k - i - j)).map(move |l| {
-                let (a, b, c) = (
-                    i as f64 / k as f64,
-                    j as f64 / k as f64,
-                    l as f64 / k as f64,
-                );
-                t[0] + (t[1] - t[0]) * a + (t[2] - t[0]) * b + (t[3] - t[0]) * c
-            })
-        })
-    })
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -566,8 +440,7 @@ mod tests {
         SimplifyOptions {
             eps: 0.866,
             eps_sweep: 1.5,
-            sample_radius: 0.25,
-            sweep_sample_radius: 0.4,
+            min_radius: 0.05,
             target_triangles: 0,
         }
     }
@@ -589,24 +462,32 @@ mod tests {
     }
 
     #[test]
-    fn one_voxel_cannot_lose_a_corner() {
-        // Any collapse of a cube's edge cuts off a corner by more than the band allows, or
-        // breaks the link condition: the 12 triangles stay.
+    fn one_voxel_keeps_its_corners_in_a_narrow_band() {
+        // Cutting a unit cube's corner moves some new triangle's points at least 1/6 inside
+        // (the shallowest cut, collapsing a face edge to its midpoint, leaves the centroid
+        // (11/6, 5/3, 4/3) 1/6 below the face x = 2): a band of 0.1 keeps all 12 triangles.
         let cls = boxed([3, 3, 3], [1.0, 1.0, 1.0], [2.0, 2.0, 2.0]);
         let start = extract(&cls);
-        let (out, _) = simplify(
-            &start,
-            &cls,
-            SimplifyOptions {
-                eps: 0.3,
-                eps_sweep: 0.6,
-                sample_radius: 0.1,
-                sweep_sample_radius: 0.2,
-                target_triangles: 0,
-            },
-        );
+        let narrow = SimplifyOptions {
+            eps: 0.1,
+            eps_sweep: 0.6,
+            min_radius: 0.01,
+            target_triangles: 0,
+        };
+        let (out, _) = simplify(&start, &cls, narrow);
         assert_eq!(out.triangles.len(), 12);
         assert!((out.volume() - 1.0).abs() < 1e-12);
+        // A band of 0.3 admits that cut (every point of its triangles is within 1/6 of the
+        // surface); every point of a unit cube is within 1/2 of its surface, so the swept-region
+        // test cannot object: corners go, the mesh stays closed.
+        let (out, stats) = simplify(&start, &cls, SimplifyOptions { eps: 0.3, ..narrow });
+        assert!(out.triangles.len() < 12, "{stats:?}");
+        assert!(out.unpaired_edges().is_empty());
+        assert!(
+            out.volume() > 0.25 && out.volume() < 1.0,
+            "{}",
+            out.volume()
+        );
     }
 
     /// Review finding: small isolated components collapsed to two coincident triangles of
@@ -657,34 +538,5 @@ mod tests {
             out.triangles.len()
         );
         assert!(out.unpaired_edges().is_empty());
-    }
-
-    #[test]
-    fn tetrahedron_samples_cover_it() {
-        let t = [
-            DVec3::ZERO,
-            DVec3::new(3.0, 0.2, 0.1),
-            DVec3::new(0.5, 2.0, -0.3),
-            DVec3::new(1.0, 0.7, 2.5),
-        ];
-        let samples: Vec<DVec3> = cover_tetrahedron(t, 0.4).collect();
-        let mut seed = 3u64;
-        let mut rnd = || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (seed >> 11) as f64 / (1u64 << 53) as f64
-        };
-        for _ in 0..20_000 {
-            let mut w = [rnd(), rnd(), rnd(), rnd()].map(|x| -x.max(1e-300).ln());
-            let sum: f64 = w.iter().sum();
-            w.iter_mut().for_each(|x| *x /= sum);
-            let p = t[0] * w[0] + t[1] * w[1] + t[2] * w[2] + t[3] * w[3];
-            let d = samples
-                .iter()
-                .map(|s| (*s - p).length())
-                .fold(f64::INFINITY, f64::min);
-            assert!(d <= 0.4, "{p} is {d} from every sample");
-        }
     }
 }

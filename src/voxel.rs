@@ -138,4 +138,33 @@ pub(crate) mod test_support {
         }
         Classifier::new(&images)
     }
+
+    /// A classifier whose pixels get random depth ranges around the middle 60% of each axis
+    /// (one in a hundred none): the inside set is a rough block with deep parts, tunnels and many
+    /// concavities, random but reproducible from `seed`.
+    pub fn random(dims: [u32; 3], seed: u64) -> Classifier {
+        let grid = Grid {
+            origin: [0.0; 3],
+            h: 1.0,
+            dims,
+        };
+        let mut state = seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) | 1;
+        let mut unit = move || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 11) as f32 / (1u64 << 53) as f32
+        };
+        let mut images = DepthImages::empty(grid);
+        for img in images.images.iter_mut() {
+            let n = dims[img.axis] as f32;
+            for i in 0..img.min.len() {
+                if unit() < 0.99 {
+                    img.min[i] = n * 0.2 + 2.0 * unit();
+                    img.max[i] = n * 0.8 - 2.0 * unit();
+                }
+            }
+        }
+        Classifier::new(&images)
+    }
 }

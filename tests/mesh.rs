@@ -55,8 +55,7 @@ fn simplify_options(input: &SweepInput) -> SimplifyOptions {
     SimplifyOptions {
         eps: 3f64.sqrt() / 2.0,
         eps_sweep: d - 3f64.sqrt() / 2.0 - 0.05,
-        sample_radius: 0.25,
-        sweep_sample_radius: 0.4,
+        min_radius: 0.05,
         target_triangles: 0,
     }
 }
