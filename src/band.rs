@@ -49,7 +49,7 @@ pub fn dist_to_boundary(cls: &Classifier, p: DVec3, limit: f64) -> Option<f64> {
 
 /// Multiplicative hash for packed voxel keys (the std SipHash dominated the profile).
 #[derive(Default)]
-struct KeyHasher(u64);
+pub(crate) struct KeyHasher(u64);
 
 impl Hasher for KeyHasher {
     fn write(&mut self, bytes: &[u8]) {
@@ -81,7 +81,14 @@ const BLOCK: [[u8; 3]; 125] = {
 pub struct Proximity<'c> {
     cls: &'c Classifier,
     opposite: HashMap<u64, u128, BuildHasherDefault<KeyHasher>>,
+    /// The last entry looked up (key, entry); key u64::MAX: none.
+    last: (u64, u128),
 }
+
+/// Memo entry bit holding the voxel's own class.
+const INSIDE_BIT: u32 = 127;
+/// Memo entry bits of the other-class voxels in the block.
+const OPPOSITE_BITS: u128 = (1 << 125) - 1;
 
 /// Nodes one region test may visit before it gives up (and rejects, which is always sound).
 const NODE_BUDGET: usize = 4096;
@@ -91,6 +98,7 @@ impl<'c> Proximity<'c> {
         Proximity {
             cls,
             opposite: HashMap::default(),
+            last: (u64::MAX, 0),
         }
     }
 
@@ -99,13 +107,17 @@ impl<'c> Proximity<'c> {
         self.opposite.len()
     }
 
-    fn mask(&mut self, v: [isize; 3]) -> u128 {
+    /// The memo entry of voxel `v`: bits 0..125 as in [`BLOCK`], bit [`INSIDE_BIT`] its class.
+    fn entry(&mut self, v: [isize; 3]) -> u128 {
         // Keys pack i+2, j+2, k+2 in 21 bits each (the grid is at most 12288 voxels wide).
         let key = (v[0] + 2) as u64 | ((v[1] + 2) as u64) << 21 | ((v[2] + 2) as u64) << 42;
+        if self.last.0 == key {
+            return self.last.1; // refinement queries the same voxel many times in a row
+        }
         let cls = self.cls;
-        *self.opposite.entry(key).or_insert_with(|| {
+        let entry = *self.opposite.entry(key).or_insert_with(|| {
             let here = cls.inside(v[0], v[1], v[2]);
-            let mut m = 0u128;
+            let mut m = (here as u128) << INSIDE_BIT;
             for (n, o) in BLOCK.iter().enumerate() {
                 let [di, dj, dk] = o.map(|x| x as isize - 2);
                 if cls.inside(v[0] + di, v[1] + dj, v[2] + dk) != here {
@@ -113,29 +125,30 @@ impl<'c> Proximity<'c> {
                 }
             }
             m
-        })
-    }
-
-    /// Squared per-axis gaps from `p` (in its voxel `v`) to the cubes at offsets -2..=2.
-    fn gaps(p: DVec3, v: DVec3) -> [[f64; 5]; 3] {
-        let l = p - v; // in [0, 1)³
-        [l.x, l.y, l.z].map(|l| [l + 1.0, l, 0.0, 1.0 - l, 2.0 - l].map(|g| g * g))
+        });
+        self.last = (key, entry);
+        entry
     }
 
     /// dist(p, ∂W) when it is below [`REACH`], else REACH; and whether p's voxel is inside W.
     pub fn distance(&mut self, p: DVec3) -> (f64, bool) {
         let v = p.floor();
-        let key = [v.x as isize, v.y as isize, v.z as isize];
-        let mut bits = self.mask(key);
-        let inside = self.cls.inside(key[0], key[1], key[2]);
-        let g = Self::gaps(p, v);
+        let entry = self.entry([v.x as isize, v.y as isize, v.z as isize]);
+        // Squared gaps per axis from p to the cubes at offsets -2..=2 (local coordinate l).
+        let gaps = |l: f64| {
+            let (a, b) = (1.0 - l, 2.0 - l);
+            [(l + 1.0) * (l + 1.0), l * l, 0.0, a * a, b * b]
+        };
+        let l = p - v; // in [0, 1)³
+        let (gx, gy, gz) = (gaps(l.x), gaps(l.y), gaps(l.z));
         let mut best = REACH * REACH;
+        let mut bits = entry & OPPOSITE_BITS;
         while bits != 0 {
             let [i, j, k] = BLOCK[bits.trailing_zeros() as usize];
             bits &= bits - 1;
-            best = best.min(g[0][i as usize] + g[1][j as usize] + g[2][k as usize]);
+            best = best.min(gx[i as usize] + gy[j as usize] + gz[k as usize]);
         }
-        (best.sqrt(), inside)
+        (best.sqrt(), entry >> INSIDE_BIT & 1 == 1)
     }
 
     /// Whether every point of triangle `t` is within `limit` (< REACH) of ∂W. Adaptive: a piece

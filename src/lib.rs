@@ -8,6 +8,7 @@ pub mod depth;
 pub mod error;
 pub mod extract;
 pub mod grid;
+pub mod intersect;
 pub mod io;
 pub mod job;
 pub mod mesh;

@@ -7,6 +7,8 @@
 //! - sweep: every tetrahedron joining an old triangle around the edge to the new vertex holds no
 //!   point of W deeper than `eps_sweep` (eps_sweep + √3/2 < δ), so the surface never passes over
 //!   a point of the swept volume and every such point stays enclosed;
+//! - no self-intersection: new triangles are tested against the triangles near them (a spatial
+//!   hash) and each other, conservatively ([`crate::intersect::conflict`]);
 //! - topology: only edges with two faces whose endpoints are manifold and satisfy the link
 //!   condition collapse, so the mesh stays watertight and no fan is torn; no face may flip.
 //!
@@ -19,8 +21,12 @@ use std::collections::BinaryHeap;
 use glam::{DMat3, DVec3};
 
 use crate::band::{self, Proximity};
+use crate::intersect::{boxes_meet, conflict, TriangleHash};
 use crate::mesh::Mesh;
 use crate::voxel::Classifier;
+
+/// Edge of the triangle hash's cells, grid units (triangles span a few voxels).
+const HASH_CELL: f64 = 4.0;
 
 /// What the simplifier may do, grid units.
 #[derive(Clone, Copy, Debug)]
@@ -43,6 +49,7 @@ pub struct SimplifyStats {
     pub rejected_flip: u64,
     pub rejected_band: u64,
     pub rejected_sweep: u64,
+    pub rejected_intersection: u64,
 }
 
 /// Symmetric 4x4 quadric: upper triangle of [A b; bᵀ c] for the error vᵀAv + 2bᵀv + c.
@@ -139,6 +146,8 @@ impl Ord for Candidate {
 
 struct State<'c> {
     prox: Proximity<'c>,
+    /// Every live triangle under the cells its current box meets (plus stale entries).
+    hash: TriangleHash,
     opts: SimplifyOptions,
     pos: Vec<DVec3>,
     tris: Vec<[u32; 3]>,
@@ -158,6 +167,7 @@ pub fn simplify(mesh: &Mesh, cls: &Classifier, opts: SimplifyOptions) -> (Mesh, 
     let n = mesh.positions.len();
     let mut s = State {
         prox: Proximity::new(cls),
+        hash: TriangleHash::new(HASH_CELL),
         opts,
         pos: mesh.positions.clone(),
         tris: mesh.triangles.clone(),
@@ -170,6 +180,7 @@ pub fn simplify(mesh: &Mesh, cls: &Classifier, opts: SimplifyOptions) -> (Mesh, 
         stats: SimplifyStats::default(),
     };
     for (t, tri) in mesh.triangles.iter().enumerate() {
+        s.hash.insert(t as u32, &tri.map(|i| s.pos[i as usize]));
         let q = Quadric::plane(tri.map(|i| s.pos[i as usize]));
         for &v in tri {
             s.star[v as usize].push(t as u32);
@@ -385,6 +396,32 @@ impl State<'_> {
             }
         }
 
+        // No self-intersection: each new triangle against the surviving triangles near it and
+        // against the other new ones (ids as after the collapse: b becomes a).
+        let renamed =
+            |t: u32| self.tris[t as usize].map(|x| if x as usize == b { a as u32 } else { x });
+        let new: Vec<([u32; 3], [DVec3; 3])> =
+            changed.iter().map(|(t, q)| (renamed(*t), *q)).collect();
+        let mut near = Vec::new();
+        for (k, (ti, q)) in new.iter().enumerate() {
+            let (tris, pos, alive) = (&self.tris, &self.pos, &self.tri_alive);
+            let current =
+                |u: u32| alive[u as usize].then(|| tris[u as usize].map(|x| pos[x as usize]));
+            self.hash.near(q, current, &mut near);
+            let others = near
+                .iter()
+                .filter(|u| self.tri_alive[**u as usize] && around.binary_search(u).is_err())
+                .map(|&u| {
+                    let ui = self.tris[u as usize];
+                    (ui, ui.map(|x| self.pos[x as usize]))
+                });
+            let mut pairs = others.chain(new[k + 1..].iter().copied());
+            if pairs.any(|(ui, up)| boxes_meet(q, &up) && conflict(*ti, *q, ui, up)) {
+                self.stats.rejected_intersection += 1;
+                return false;
+            }
+        }
+
         // Apply: b merges into a at v.
         for &t in &shared {
             self.tri_alive[t as usize] = false;
@@ -405,6 +442,9 @@ impl State<'_> {
         self.star[b].clear();
         self.vert_alive[b] = false;
         self.pos[a] = v;
+        for (t, q) in &changed {
+            self.hash.insert(*t, q);
+        }
         self.quadric[a] = self.quadric[a].add(&self.quadric[b]);
         self.version[a] += 1;
         self.stats.collapses += 1;
@@ -433,8 +473,23 @@ impl State<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::band::dist_to_boundary;
     use crate::extract::extract;
     use crate::voxel::test_support::boxed;
+
+    /// Generalized winding number of a closed mesh at `p` (solid angles, Van Oosterom and
+    /// Strackee).
+    fn winding_number(m: &Mesh, p: DVec3) -> f64 {
+        let mut sum = 0.0;
+        for t in &m.triangles {
+            let [a, b, c] = t.map(|v| m.positions[v as usize] - p);
+            let (la, lb, lc) = (a.length(), b.length(), c.length());
+            let num = a.dot(b.cross(c));
+            let den = la * lb * lc + a.dot(b) * lc + b.dot(c) * la + c.dot(a) * lb;
+            sum += 2.0 * num.atan2(den);
+        }
+        sum / (4.0 * std::f64::consts::PI)
+    }
 
     fn defaults() -> SimplifyOptions {
         SimplifyOptions {
@@ -538,5 +593,54 @@ mod tests {
             out.triangles.len()
         );
         assert!(out.unpaired_edges().is_empty());
+    }
+
+    /// Rough random voxel sets (tunnels, pinches, thin walls): the result stays watertight and
+    /// no two of its triangles meet beyond what they share. Without the intersection test every
+    /// seed here ends with 6 to 34 such pairs.
+    #[test]
+    fn random_voxel_sets_simplify_without_self_intersection() {
+        for seed in 0..3 {
+            let cls = crate::voxel::test_support::random([20, 20, 20], seed);
+            let start = extract(&cls);
+            let (out, stats) = simplify(&start, &cls, defaults());
+            assert!(out.unpaired_edges().is_empty());
+            assert!(out.triangles.len() * 2 < start.triangles.len(), "{stats:?}");
+            assert!(stats.rejected_intersection > 0, "{stats:?}");
+            // Every vertex and triangle centroid within the band; every voxel centre of W deeper
+            // than eps_sweep still enclosed (winding number 1).
+            for t in &out.triangles {
+                let p = t.map(|v| out.positions[v as usize]);
+                for x in [p[0], (p[0] + p[1] + p[2]) / 3.0] {
+                    assert!(
+                        dist_to_boundary(&cls, x, defaults().eps).is_some(),
+                        "{x} off band"
+                    );
+                }
+            }
+            let mut deep = 0;
+            for k in 0..20 {
+                for j in 0..20 {
+                    for i in 0..20 {
+                        let c = DVec3::new(i as f64, j as f64, k as f64) + 0.5;
+                        if cls.inside(i, j, k) && dist_to_boundary(&cls, c, 1.5).is_none() {
+                            deep += 1;
+                            let w = winding_number(&out, c);
+                            assert!((w - 1.0).abs() < 1e-6, "seed {seed}: {c} has winding {w}");
+                        }
+                    }
+                }
+            }
+            assert!(deep > 30, "seed {seed}: only {deep} deep voxels");
+            for (i, ti) in out.triangles.iter().enumerate() {
+                for tj in &out.triangles[i + 1..] {
+                    let [s, t] = [ti, tj].map(|x| x.map(|v| out.positions[v as usize]));
+                    assert!(
+                        !conflict(*ti, s, *tj, t),
+                        "seed {seed}: {s:?} and {t:?} meet"
+                    );
+                }
+            }
+        }
     }
 }

@@ -113,9 +113,12 @@ pub(crate) mod test_support {
     use crate::depth::{DepthImages, COLUMN_AXIS, ROW_AXIS};
     use crate::grid::Grid;
 
-    /// A classifier (unit voxels, origin 0) whose inside set is the box of voxels [lo, hi):
-    /// every ray through the box's footprint gets the box's range, slightly inset.
-    pub fn boxed(dims: [u32; 3], lo: [f32; 3], hi: [f32; 3]) -> Classifier {
+    /// A classifier (unit voxels, origin 0) from each pixel's depth range: `range(axis, u, v)`
+    /// for the pixel centre at (u, v) along the image's column and row axes.
+    pub fn from_ranges(
+        dims: [u32; 3],
+        range: impl Fn(usize, f32, f32) -> Option<(f32, f32)>,
+    ) -> Classifier {
         let grid = Grid {
             origin: [0.0; 3],
             h: 1.0,
@@ -123,20 +126,26 @@ pub(crate) mod test_support {
         };
         let mut images = DepthImages::empty(grid);
         for img in images.images.iter_mut() {
-            let a = img.axis;
-            let (cu, rv) = (COLUMN_AXIS[a], ROW_AXIS[a]);
             for rb in 0..img.height {
                 for col in 0..img.width {
-                    let (u, v) = (col as f32 + 0.5, rb as f32 + 0.5);
-                    if u > lo[cu] && u < hi[cu] && v > lo[rv] && v < hi[rv] {
+                    if let Some((lo, hi)) = range(img.axis, col as f32 + 0.5, rb as f32 + 0.5) {
                         let i = img.index(col, rb);
-                        img.min[i] = lo[a] + 0.1;
-                        img.max[i] = hi[a] - 0.1;
+                        (img.min[i], img.max[i]) = (lo, hi);
                     }
                 }
             }
         }
         Classifier::new(&images)
+    }
+
+    /// A classifier whose inside set is the box of voxels [lo, hi): every ray through the box's
+    /// footprint gets the box's range, slightly inset.
+    pub fn boxed(dims: [u32; 3], lo: [f32; 3], hi: [f32; 3]) -> Classifier {
+        from_ranges(dims, |a, u, v| {
+            let (cu, rv) = (COLUMN_AXIS[a], ROW_AXIS[a]);
+            (u > lo[cu] && u < hi[cu] && v > lo[rv] && v < hi[rv])
+                .then_some((lo[a] + 0.1, hi[a] - 0.1))
+        })
     }
 
     /// A classifier whose pixels get random depth ranges around the middle 60% of each axis

@@ -1,0 +1,432 @@
+//! Triangle-pair predicates for keeping a mesh free of self-intersections, and a spatial hash of
+//! the triangles to find the pairs worth testing.
+//!
+//! The predicates are conservative for the simplifier's use: with a tolerance `TOUCH` (grid
+//! units), pairs that come closer than it (without sharing a vertex) count as intersecting, so a
+//! rejection may be spurious but an accepted pair is apart by at least `TOUCH` in f64.
+
+use std::collections::HashMap;
+use std::hash::BuildHasherDefault;
+
+use glam::DVec3;
+
+use crate::band::KeyHasher;
+
+/// Distance below which two triangles without a common vertex count as touching, grid units.
+pub const TOUCH: f64 = 1e-6;
+/// Cosine beyond which two triangles with a common edge count as folded onto each other (their
+/// dihedral angle is within about 0.08° of zero).
+const FOLDED_COS: f64 = 1.0 - 1e-6;
+/// |cos| beyond which two triangles with a common vertex are treated as coplanar.
+const COPLANAR_COS: f64 = 1.0 - 1e-9;
+
+/// Closest point of triangle `t` to `p` (Ericson, Real-Time Collision Detection, 5.1.5).
+fn closest_on_triangle(p: DVec3, t: [DVec3; 3]) -> DVec3 {
+    let [a, b, c] = t;
+    let (ab, ac, ap) = (b - a, c - a, p - a);
+    let (d1, d2) = (ab.dot(ap), ac.dot(ap));
+    if d1 <= 0.0 && d2 <= 0.0 {
+        return a;
+    }
+    let bp = p - b;
+    let (d3, d4) = (ab.dot(bp), ac.dot(bp));
+    if d3 >= 0.0 && d4 <= d3 {
+        return b;
+    }
+    let vc = d1 * d4 - d3 * d2;
+    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
+        return a + ab * (d1 / (d1 - d3));
+    }
+    let cp = p - c;
+    let (d5, d6) = (ab.dot(cp), ac.dot(cp));
+    if d6 >= 0.0 && d5 <= d6 {
+        return c;
+    }
+    let vb = d5 * d2 - d1 * d6;
+    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
+        return a + ac * (d2 / (d2 - d6));
+    }
+    let va = d3 * d6 - d5 * d4;
+    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
+        return b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)));
+    }
+    let denom = va + vb + vc;
+    if denom.abs() < f64::MIN_POSITIVE {
+        // Degenerate triangle: the nearest of its edges.
+        return [(a, b), (b, c), (c, a)]
+            .map(|(u, w)| closest_on_segment(p, u, w))
+            .into_iter()
+            .min_by(|x, y| {
+                (*x - p)
+                    .length_squared()
+                    .total_cmp(&(*y - p).length_squared())
+            })
+            .expect("three edges");
+    }
+    a + ab * (vb / denom) + ac * (vc / denom)
+}
+
+fn closest_on_segment(p: DVec3, a: DVec3, b: DVec3) -> DVec3 {
+    let ab = b - a;
+    let l2 = ab.length_squared();
+    if l2 == 0.0 {
+        return a;
+    }
+    a + ab * ((p - a).dot(ab) / l2).clamp(0.0, 1.0)
+}
+
+/// Distance between segments [p1, q1] and [p2, q2] (Ericson 5.1.9).
+fn segment_segment(p1: DVec3, q1: DVec3, p2: DVec3, q2: DVec3) -> f64 {
+    let (d1, d2, r) = (q1 - p1, q2 - p2, p1 - p2);
+    let (a, e, f) = (d1.length_squared(), d2.length_squared(), d2.dot(r));
+    let (s, t);
+    if a <= f64::MIN_POSITIVE && e <= f64::MIN_POSITIVE {
+        return r.length();
+    }
+    if a <= f64::MIN_POSITIVE {
+        s = 0.0;
+        t = (f / e).clamp(0.0, 1.0);
+    } else {
+        let c = d1.dot(r);
+        if e <= f64::MIN_POSITIVE {
+            t = 0.0;
+            s = (-c / a).clamp(0.0, 1.0);
+        } else {
+            let b = d1.dot(d2);
+            let denom = a * e - b * b;
+            let s0 = if denom > 0.0 {
+                ((b * f - c * e) / denom).clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
+            let t0 = (b * s0 + f) / e;
+            if t0 < 0.0 {
+                t = 0.0;
+                s = (-c / a).clamp(0.0, 1.0);
+            } else if t0 > 1.0 {
+                t = 1.0;
+                s = ((b - c) / a).clamp(0.0, 1.0);
+            } else {
+                (s, t) = (s0, t0);
+            }
+        }
+    }
+    ((p1 + d1 * s) - (p2 + d2 * t)).length()
+}
+
+/// Distance from segment [p, q] to triangle `t`.
+fn segment_triangle(p: DVec3, q: DVec3, t: [DVec3; 3]) -> f64 {
+    let n = (t[1] - t[0]).cross(t[2] - t[0]);
+    let (sp, sq) = (n.dot(p - t[0]), n.dot(q - t[0]));
+    if n.length_squared() > 0.0 && sp * sq <= 0.0 && sp != sq {
+        // The segment meets the plane at x: inside the triangle means distance 0.
+        let x = p + (q - p) * (sp / (sp - sq));
+        if inside_prism(x, t, n) {
+            return 0.0;
+        }
+    }
+    let mut best = (closest_on_triangle(p, t) - p)
+        .length()
+        .min((closest_on_triangle(q, t) - q).length());
+    for k in 0..3 {
+        best = best.min(segment_segment(p, q, t[k], t[(k + 1) % 3]));
+    }
+    best
+}
+
+/// Whether `x` (on the plane of `t`, normal `n`) is inside or on `t`.
+fn inside_prism(x: DVec3, t: [DVec3; 3], n: DVec3) -> bool {
+    (0..3).all(|k| (t[(k + 1) % 3] - t[k]).cross(x - t[k]).dot(n) >= 0.0)
+}
+
+/// Distance between two triangles: zero when they intersect (some edge of one then meets the
+/// other), else reached between a vertex and a face or between two edges.
+pub fn triangle_distance(s: [DVec3; 3], t: [DVec3; 3]) -> f64 {
+    let mut best = f64::INFINITY;
+    for k in 0..3 {
+        best = best
+            .min(segment_triangle(s[k], s[(k + 1) % 3], t))
+            .min(segment_triangle(t[k], t[(k + 1) % 3], s));
+        if best == 0.0 {
+            break;
+        }
+    }
+    best
+}
+
+/// Whether two mesh triangles (vertex ids `si`, `ti`, positions `s`, `t`) overlap beyond what
+/// they share: a pair with no common vertex closer than [`TOUCH`]; a pair with a common edge
+/// folded flat onto itself; a pair with one common vertex whose far edges cross the other
+/// triangle, or, when coplanar, whose corners at that vertex overlap; the same triangle twice.
+pub fn conflict(si: [u32; 3], s: [DVec3; 3], ti: [u32; 3], t: [DVec3; 3]) -> bool {
+    let common: Vec<(usize, usize)> = (0..3)
+        .flat_map(|i| (0..3).map(move |j| (i, j)))
+        .filter(|&(i, j)| si[i] == ti[j])
+        .collect();
+    let (ns, nt) = (
+        (s[1] - s[0]).cross(s[2] - s[0]).normalize_or_zero(),
+        (t[1] - t[0]).cross(t[2] - t[0]).normalize_or_zero(),
+    );
+    match common.len() {
+        0 => !apart(s, ns, &t) && !apart(t, nt, &s) && triangle_distance(s, t) < TOUCH,
+        1 => {
+            let (i, j) = common[0];
+            let p = s[i];
+            let (a, b) = (s[(i + 1) % 3], s[(i + 2) % 3]);
+            let (c, d) = (t[(j + 1) % 3], t[(j + 2) % 3]);
+            if (!apart(s, ns, &[c, d]) && segment_triangle(c, d, s) < TOUCH)
+                || (!apart(t, nt, &[a, b]) && segment_triangle(a, b, t) < TOUCH)
+            {
+                return true;
+            }
+            ns.dot(nt).abs() > COPLANAR_COS && corners_overlap(p, [a, b], [c, d], ns)
+        }
+        2 => {
+            // Planes meeting at the common edge pq cross only along it, unless the two lie
+            // folded onto each other: coplanar with their far vertices on the same side.
+            let i = common[0].0;
+            let (p, e) = (s[i], s[common[1].0] - s[i]);
+            let far = |x: [DVec3; 3], ids: [u32; 3]| {
+                let k = (0..3).find(|&k| ids[k] != si[i] && ids[k] != si[common[1].0]);
+                e.cross(x[k.expect("a third vertex")] - p)
+            };
+            let (cs, ct) = (far(s, si), far(t, ti));
+            cs.dot(ct) > FOLDED_COS * cs.length() * ct.length()
+        }
+        _ => true,
+    }
+}
+
+/// Whether `points` all lie farther than [`TOUCH`] on one side of the plane of `s` (unit normal
+/// `n`, zero for a degenerate `s`): then nothing of theirs comes within TOUCH of `s`.
+fn apart(s: [DVec3; 3], n: DVec3, points: &[DVec3]) -> bool {
+    if n == DVec3::ZERO {
+        return false;
+    }
+    let d = |p: &DVec3| n.dot(*p - s[0]);
+    points.iter().all(|p| d(p) > TOUCH) || points.iter().all(|p| d(p) < -TOUCH)
+}
+
+/// Whether the corners at `p` of two coplanar triangles (far vertices `ab`, `cd`, normal `n`)
+/// overlap: one holds an edge direction or the bisector of the other strictly inside.
+fn corners_overlap(p: DVec3, ab: [DVec3; 2], cd: [DVec3; 2], n: DVec3) -> bool {
+    let within = |cone: [DVec3; 2], x: DVec3| {
+        let (u, w) = (cone[0] - p, cone[1] - p);
+        let side = u.cross(w).dot(n).signum();
+        let x = x - p;
+        u.cross(x).dot(n) * side > 0.0 && x.cross(w).dot(n) * side > 0.0
+    };
+    let mid = |e: [DVec3; 2]| p + (e[0] - p).normalize_or_zero() + (e[1] - p).normalize_or_zero();
+    within(ab, cd[0])
+        || within(ab, cd[1])
+        || within(ab, mid(cd))
+        || within(cd, ab[0])
+        || within(cd, ab[1])
+        || within(cd, mid(ab))
+}
+
+/// Triangle ids by the cells their bounding boxes meet. Entries are only added: a triangle that
+/// moves is inserted again under its new cells, so every live triangle is found in each cell its
+/// current box meets; callers skip dead and far ones.
+pub struct TriangleHash {
+    cell: f64,
+    cells: HashMap<u64, Vec<u32>, BuildHasherDefault<KeyHasher>>,
+}
+
+impl TriangleHash {
+    /// `cell`: edge of a hash cell, grid units.
+    pub fn new(cell: f64) -> Self {
+        TriangleHash {
+            cell,
+            cells: HashMap::default(),
+        }
+    }
+
+    fn cell_range(&self, t: &[DVec3; 3]) -> ([i64; 3], [i64; 3]) {
+        let lo = t[0].min(t[1]).min(t[2]) - DVec3::splat(TOUCH);
+        let hi = t[0].max(t[1]).max(t[2]) + DVec3::splat(TOUCH);
+        let f = |v: DVec3| {
+            let c = (v / self.cell).floor();
+            [c.x as i64, c.y as i64, c.z as i64]
+        };
+        (f(lo), f(hi))
+    }
+
+    fn key(c: [i64; 3]) -> u64 {
+        // Cells lie in [-1, 12288/cell + 1]: 21 bits each with an offset of 2.
+        (c[0] + 2) as u64 | ((c[1] + 2) as u64) << 21 | ((c[2] + 2) as u64) << 42
+    }
+
+    pub fn insert(&mut self, id: u32, t: &[DVec3; 3]) {
+        let (lo, hi) = self.cell_range(t);
+        for k in lo[2]..=hi[2] {
+            for j in lo[1]..=hi[1] {
+                for i in lo[0]..=hi[0] {
+                    self.cells.entry(Self::key([i, j, k])).or_default().push(id);
+                }
+            }
+        }
+    }
+
+    /// Ids whose cells meet the box of `t` (a superset of the triangles near it), sorted, unique.
+    /// `current` gives a triangle's positions now, or None when it is gone: each visited cell
+    /// drops the ids that are gone or have moved away from it.
+    pub fn near(
+        &mut self,
+        t: &[DVec3; 3],
+        current: impl Fn(u32) -> Option<[DVec3; 3]>,
+        out: &mut Vec<u32>,
+    ) {
+        out.clear();
+        let (lo, hi) = self.cell_range(t);
+        let cell = self.cell;
+        for k in lo[2]..=hi[2] {
+            for j in lo[1]..=hi[1] {
+                for i in lo[0]..=hi[0] {
+                    let Some(ids) = self.cells.get_mut(&Self::key([i, j, k])) else {
+                        continue;
+                    };
+                    let (clo, chi) = (
+                        DVec3::new(i as f64, j as f64, k as f64) * cell,
+                        DVec3::new((i + 1) as f64, (j + 1) as f64, (k + 1) as f64) * cell,
+                    );
+                    ids.retain(|&id| {
+                        current(id).is_some_and(|p| {
+                            let (plo, phi) = (p[0].min(p[1]).min(p[2]), p[0].max(p[1]).max(p[2]));
+                            (plo - chi).max_element() <= TOUCH && (clo - phi).max_element() <= TOUCH
+                        })
+                    });
+                    ids.sort_unstable();
+                    ids.dedup();
+                    out.extend_from_slice(ids);
+                }
+            }
+        }
+        out.sort_unstable();
+        out.dedup();
+    }
+}
+
+/// Whether the boxes of two triangles come within [`TOUCH`] of each other.
+pub fn boxes_meet(s: &[DVec3; 3], t: &[DVec3; 3]) -> bool {
+    let (slo, shi) = (s[0].min(s[1]).min(s[2]), s[0].max(s[1]).max(s[2]));
+    let (tlo, thi) = (t[0].min(t[1]).min(t[2]), t[0].max(t[1]).max(t[2]));
+    (slo - thi).max_element() <= TOUCH && (tlo - shi).max_element() <= TOUCH
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn v(x: f64, y: f64, z: f64) -> DVec3 {
+        DVec3::new(x, y, z)
+    }
+
+    #[test]
+    fn triangle_distance_on_hand_made_pairs() {
+        let s = [v(0.0, 0.0, 0.0), v(2.0, 0.0, 0.0), v(0.0, 2.0, 0.0)];
+        // Parallel, 0.5 above: distance 0.5.
+        let t = s.map(|p| p + v(0.1, 0.1, 0.5));
+        assert!((triangle_distance(s, t) - 0.5).abs() < 1e-12);
+        // Piercing through the middle: 0.
+        let pierce = [v(0.5, 0.5, -1.0), v(0.6, 0.5, 1.0), v(0.5, 0.6, 1.0)];
+        assert_eq!(triangle_distance(s, pierce), 0.0);
+        // Coplanar and overlapping, no edge of one crossing the plane: 0.
+        let overlap = [v(0.2, 0.2, 0.0), v(0.6, 0.2, 0.0), v(0.2, 0.6, 0.0)];
+        assert_eq!(triangle_distance(s, overlap), 0.0);
+        // Edge against edge, skew: the distance between the lines.
+        let skew = [v(1.0, 1.5, 0.3), v(1.0, 1.5, 2.0), v(3.0, 3.0, 3.0)];
+        let d = triangle_distance(s, skew);
+        let by_samples = (0..=200)
+            .flat_map(|i| (0..=(200 - i)).map(move |j| (i, j)))
+            .map(|(i, j)| {
+                let p =
+                    s[0] + (s[1] - s[0]) * (i as f64 / 200.0) + (s[2] - s[0]) * (j as f64 / 200.0);
+                (closest_on_triangle(p, skew) - p).length()
+            })
+            .fold(f64::INFINITY, f64::min);
+        assert!(
+            d <= by_samples + 1e-12 && d > by_samples - 0.02,
+            "{d} vs {by_samples}"
+        );
+    }
+
+    #[test]
+    fn conflicts_by_what_the_pair_shares() {
+        let ids = [0, 1, 2];
+        let s = [v(0.0, 0.0, 0.0), v(2.0, 0.0, 0.0), v(0.0, 2.0, 0.0)];
+        // A hinge along edge 0-1: open is fine, folded flat onto s is not.
+        let open = [v(0.0, 0.0, 0.0), v(2.0, 0.0, 0.0), v(1.0, -1.0, 0.5)];
+        assert!(!conflict(ids, s, [1, 0, 3], open));
+        let folded = [v(2.0, 0.0, 0.0), v(0.0, 0.0, 0.0), v(0.5, 1.0, 0.0)];
+        assert!(conflict(ids, s, [1, 0, 3], folded));
+        // A common vertex: a fan neighbour beside s is fine, one lying over s in its plane is
+        // not, nor one whose far edge pierces s.
+        let beside = [v(0.0, 0.0, 0.0), v(0.0, -2.0, 0.0), v(2.0, -1.0, 0.0)];
+        assert!(!conflict(ids, s, [0, 4, 5], beside));
+        let over = [v(0.0, 0.0, 0.0), v(1.0, 0.2, 0.0), v(0.2, 1.0, 0.0)];
+        assert!(conflict(ids, s, [0, 4, 5], over));
+        let through = [v(0.0, 0.0, 0.0), v(0.5, 0.5, -1.0), v(0.5, 0.6, 1.0)];
+        assert!(conflict(ids, s, [0, 4, 5], through));
+        let tilted = [v(0.0, 0.0, 0.0), v(1.0, 1.0, 1.0), v(0.0, 1.0, 1.0)];
+        assert!(!conflict(ids, s, [0, 4, 5], tilted));
+        // Nothing shared: touching counts, apart does not; the same triangle twice conflicts.
+        let touching = s.map(|p| p + v(0.0, 0.0, TOUCH / 2.0));
+        assert!(conflict(ids, s, [6, 7, 8], touching));
+        let apart = s.map(|p| p + v(0.0, 0.0, 0.01));
+        assert!(!conflict(ids, s, [6, 7, 8], apart));
+        assert!(conflict(ids, s, [2, 0, 1], [s[2], s[0], s[1]]));
+    }
+
+    /// Random pairs, many intersecting: the distance never exceeds that of any sampled point of
+    /// one to the other, and is within the samples' covering radius of their minimum.
+    #[test]
+    fn triangle_distance_matches_dense_samples() {
+        let mut seed = 11u64;
+        let mut rnd = move || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let k = 60;
+        let (mut hits, mut misses) = (0, 0);
+        for _ in 0..300 {
+            let mut tri = |c: f64| -> [DVec3; 3] {
+                std::array::from_fn(|_| v(rnd() * 2.0 + c, rnd() * 2.0, rnd() * 2.0))
+            };
+            let (s, t) = (tri(0.0), tri(0.8));
+            let d = triangle_distance(s, t);
+            let mut sampled = f64::INFINITY;
+            let mut longest: f64 = 0.0;
+            for (a, b) in [(s, t), (t, s)] {
+                for m in 0..3 {
+                    longest = longest.max((a[m] - a[(m + 1) % 3]).length());
+                }
+                for i in 0..=k {
+                    for j in 0..=(k - i) {
+                        let p = a[0]
+                            + (a[1] - a[0]) * (i as f64 / k as f64)
+                            + (a[2] - a[0]) * (j as f64 / k as f64);
+                        sampled = sampled.min((closest_on_triangle(p, b) - p).length());
+                    }
+                }
+            }
+            assert!(d <= sampled + 1e-12, "{s:?} {t:?}: {d} > sampled {sampled}");
+            // Barycentric grid pieces have edges at most longest/k: covering radius below that.
+            assert!(
+                d >= sampled - longest / k as f64,
+                "{s:?} {t:?}: {d} << sampled {sampled}"
+            );
+            if d == 0.0 {
+                hits += 1;
+            } else {
+                misses += 1;
+            }
+        }
+        assert!(
+            hits > 30 && misses > 30,
+            "{hits} intersecting, {misses} apart"
+        );
+    }
+}
