@@ -17,6 +17,9 @@
 
 use std::cmp::Ordering;
 use std::collections::BinaryHeap;
+use std::sync::Mutex;
+
+use rayon::prelude::*;
 
 use glam::{DMat3, DVec3};
 
@@ -24,6 +27,9 @@ use crate::band::{self, Proximity};
 use crate::intersect::{boxes_meet, conflict, TriangleHash};
 use crate::mesh::Mesh;
 use crate::voxel::Classifier;
+
+/// Candidates checked together (in parallel); results do not depend on the thread count.
+const BATCH: usize = 64;
 
 /// Edge of the triangle hash's cells, grid units (triangles span a few voxels).
 const HASH_CELL: f64 = 4.0;
@@ -50,6 +56,17 @@ pub struct SimplifyStats {
     pub rejected_band: u64,
     pub rejected_sweep: u64,
     pub rejected_intersection: u64,
+}
+
+impl SimplifyStats {
+    fn count(&mut self, why: Reject) {
+        *match why {
+            Reject::Topology => &mut self.rejected_topology,
+            Reject::Flip => &mut self.rejected_flip,
+            Reject::Band => &mut self.rejected_band,
+            Reject::Sweep => &mut self.rejected_sweep,
+        } += 1;
+    }
 }
 
 /// Symmetric 4x4 quadric: upper triangle of [A b; bᵀ c] for the error vᵀAv + 2bᵀv + c.
@@ -144,8 +161,28 @@ impl Ord for Candidate {
     }
 }
 
-struct State<'c> {
-    prox: Proximity<'c>,
+/// A collapse that passed [`State::check`]: b merges into a at v.
+struct Plan {
+    a: usize,
+    b: usize,
+    v: DVec3,
+    /// The two triangles on the edge (they disappear).
+    shared: Vec<u32>,
+    /// Every triangle around a or b before the collapse, sorted.
+    around: Vec<u32>,
+    /// The surviving triangles around the edge with their new positions.
+    changed: Vec<(u32, [DVec3; 3])>,
+}
+
+#[derive(Clone, Copy, Debug)]
+enum Reject {
+    Topology,
+    Flip,
+    Band,
+    Sweep,
+}
+
+struct State {
     /// Every live triangle under the cells its current box meets (plus stale entries).
     hash: TriangleHash,
     opts: SimplifyOptions,
@@ -166,7 +203,6 @@ pub fn simplify(mesh: &Mesh, cls: &Classifier, opts: SimplifyOptions) -> (Mesh, 
     assert!(opts.min_radius > 0.0 && opts.eps < band::REACH && opts.eps_sweep < band::REACH);
     let n = mesh.positions.len();
     let mut s = State {
-        prox: Proximity::new(cls),
         hash: TriangleHash::new(HASH_CELL),
         opts,
         pos: mesh.positions.clone(),
@@ -196,36 +232,83 @@ pub fn simplify(mesh: &Mesh, cls: &Classifier, opts: SimplifyOptions) -> (Mesh, 
             }
         }
     }
-    while let Some(c) = heap.pop() {
-        if s.live_tris <= opts.target_triangles {
+    // One distance memo per worker thread, kept across batches.
+    let proxes: Vec<Mutex<Proximity>> = (0..rayon::current_num_threads())
+        .map(|_| Mutex::new(Proximity::new(cls)))
+        .collect();
+    // Batch stamp per vertex: a candidate whose region (a, b and their neighbours) meets an
+    // earlier candidate's region in the same batch waits for the next batch.
+    let mut stamp = vec![0u32; n];
+    let mut batch_no = 0u32;
+    let mut batch: Vec<Candidate> = Vec::with_capacity(BATCH);
+    let mut deferred: Vec<Candidate> = Vec::new();
+    'batches: while s.live_tris > opts.target_triangles {
+        batch_no += 1;
+        batch.clear();
+        while batch.len() < BATCH {
+            let Some(c) = heap.pop() else { break };
+            let (a, b) = (c.a as usize, c.b as usize);
+            if !s.vert_alive[a] || !s.vert_alive[b] || (s.version[a], s.version[b]) != c.ver {
+                continue;
+            }
+            let mut region = s.neighbours(a);
+            region.extend(s.neighbours(b));
+            if region.iter().any(|&x| stamp[x] == batch_no) {
+                deferred.push(c);
+                continue;
+            }
+            for x in region {
+                stamp[x] = batch_no;
+            }
+            batch.push(c);
+        }
+        if batch.is_empty() {
             break;
         }
-        let (a, b) = (c.a as usize, c.b as usize);
-        if !s.vert_alive[a] || !s.vert_alive[b] || (s.version[a], s.version[b]) != c.ver {
-            continue;
-        }
-        if s.try_collapse(a, b, c.target) {
-            // Edges whose triangles changed: around a, and around its neighbours (their stars
-            // now hold moved triangles, so earlier rejections may no longer hold).
-            let ring = s.neighbours(a);
-            let mut edges: Vec<(usize, usize)> = Vec::new();
-            for &nb in &ring {
-                edges.push((a.min(nb), a.max(nb)));
-                for x in s.neighbours(nb) {
-                    edges.push((nb.min(x), nb.max(x)));
+        let checked: Vec<Result<Plan, Reject>> = batch
+            .par_iter()
+            .map(|c| {
+                let worker = rayon::current_thread_index().unwrap_or(0) % proxes.len();
+                let mut prox = proxes[worker].lock().expect("one user per worker");
+                s.check(&mut prox, c.a as usize, c.b as usize, c.target)
+            })
+            .collect();
+        for outcome in checked {
+            if s.live_tris <= opts.target_triangles {
+                break 'batches;
+            }
+            let plan = match outcome {
+                Ok(plan) => plan,
+                Err(why) => {
+                    s.stats.count(why);
+                    continue;
+                }
+            };
+            let a = plan.a;
+            if s.commit(plan) {
+                // Edges whose triangles changed: around a, and around its neighbours (their
+                // stars now hold moved triangles, so earlier rejections may no longer hold).
+                let ring = s.neighbours(a);
+                let mut edges: Vec<(usize, usize)> = Vec::new();
+                for &nb in &ring {
+                    edges.push((a.min(nb), a.max(nb)));
+                    for x in s.neighbours(nb) {
+                        edges.push((nb.min(x), nb.max(x)));
+                    }
+                }
+                edges.sort_unstable();
+                edges.dedup();
+                for (x, y) in edges {
+                    heap.push(s.candidate(x as u32, y as u32));
                 }
             }
-            edges.sort_unstable();
-            edges.dedup();
-            for (x, y) in edges {
-                heap.push(s.candidate(x as u32, y as u32));
-            }
         }
+        heap.extend(deferred.drain(..));
     }
     (s.compact(), s.stats)
 }
 
-impl State<'_> {
+impl State {
     fn candidate(&self, a: u32, b: u32) -> Candidate {
         let (pa, pb) = (self.pos[a as usize], self.pos[b as usize]);
         let q = self.quadric[a as usize].add(&self.quadric[b as usize]);
@@ -297,7 +380,9 @@ impl State<'_> {
         }
     }
 
-    fn try_collapse(&mut self, a: usize, b: usize, v: DVec3) -> bool {
+    /// The checks that read only the mesh around the edge (topology, flips, band, swept region),
+    /// run in parallel on independent candidates with a per-thread `prox`.
+    fn check(&self, prox: &mut Proximity, a: usize, b: usize, v: DVec3) -> Result<Plan, Reject> {
         // Topology: a two-face edge between manifold vertices, and the link condition.
         let shared: Vec<u32> = self.star[a]
             .iter()
@@ -305,8 +390,7 @@ impl State<'_> {
             .filter(|t| self.tris[*t as usize].contains(&(b as u32)))
             .collect();
         if shared.len() != 2 || !self.is_manifold(a) || !self.is_manifold(b) {
-            self.stats.rejected_topology += 1;
-            return false;
+            return Err(Reject::Topology);
         }
         let opposite: Vec<usize> = shared
             .iter()
@@ -330,8 +414,7 @@ impl State<'_> {
             })
         };
         if common != 2 || c == d || (spans_cd(a) && spans_cd(b)) {
-            self.stats.rejected_topology += 1;
-            return false;
+            return Err(Reject::Topology);
         }
 
         // The triangles around the edge before, and those that survive with a, b moved to v.
@@ -360,8 +443,7 @@ impl State<'_> {
         for (_, q) in &changed {
             let n_new = (q[1] - q[0]).cross(q[2] - q[0]);
             if n_new.length_squared() <= 1e-18 {
-                self.stats.rejected_flip += 1;
-                return false;
+                return Err(Reject::Flip);
             }
         }
         for (t, q) in &changed {
@@ -369,33 +451,47 @@ impl State<'_> {
             let n_old = (p[1] - p[0]).cross(p[2] - p[0]);
             let n_new = (q[1] - q[0]).cross(q[2] - q[0]);
             if n_old.dot(n_new) <= 0.0 {
-                self.stats.rejected_flip += 1;
-                return false;
+                return Err(Reject::Flip);
             }
         }
         // Tolerance band for the new surface; the new vertex first, the likeliest to be out.
         let (eps, r_min) = (self.opts.eps, self.opts.min_radius);
-        if self.prox.distance(v).0 > eps
+        if prox.distance(v).0 > eps
             || !changed
                 .iter()
-                .all(|(_, q)| self.prox.triangle_within(*q, eps, r_min))
+                .all(|(_, q)| prox.triangle_within(*q, eps, r_min))
         {
-            self.stats.rejected_band += 1;
-            return false;
+            return Err(Reject::Band);
         }
         // The region swept by the collapse: the tetrahedra (old triangle, v) must hold no point
         // of W deeper than eps_sweep, hence no point of the swept volume.
         let es = self.opts.eps_sweep;
         for p in &old {
-            if !self
-                .prox
-                .tetrahedron_shallow([p[0], p[1], p[2], v], es, r_min)
-            {
-                self.stats.rejected_sweep += 1;
-                return false;
+            if !prox.tetrahedron_shallow([p[0], p[1], p[2], v], es, r_min) {
+                return Err(Reject::Sweep);
             }
         }
+        Ok(Plan {
+            a,
+            b,
+            v,
+            shared,
+            around,
+            changed,
+        })
+    }
 
+    /// Apply a checked plan unless its new triangles would meet the mesh as it is now (this
+    /// test runs here, in order, so collapses of one batch are tested against each other).
+    fn commit(&mut self, plan: Plan) -> bool {
+        let Plan {
+            a,
+            b,
+            v,
+            shared,
+            around,
+            changed,
+        } = plan;
         // No self-intersection: each new triangle against the surviving triangles near it and
         // against the other new ones (ids as after the collapse: b becomes a).
         let renamed =
