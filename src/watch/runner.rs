@@ -223,7 +223,7 @@ fn execute(ctx: &Context, job: &QueuedJob, observer: &JobObserver) -> anyhow::Re
         },
     };
     let opts = options.run_options(generator, trajectory, &job.id, root, ctx.default_accuracy);
-    remove_stale_temporaries(&opts)?;
+    remove_stale_temporaries(&opts, &job.id.status_path(root))?;
     let prepared = pipeline::prepare(&opts)?;
     pipeline::execute(&prepared, backend, observer)
 }
@@ -296,21 +296,24 @@ fn check_size(
     Ok(())
 }
 
-/// Temporary outputs left by a daemon killed mid-write (`.<output>.tmp-<pid>`): removed before
+/// Temporary files left by a daemon killed mid-write (`.<output>.tmp-<pid>`): removed before
 /// the job writes its own, so nothing stale lingers and no planted link is written through.
-fn remove_stale_temporaries(opts: &pipeline::RunOptions) -> anyhow::Result<()> {
-    let outputs = pipeline::output_paths(opts)?;
+/// The status file's temporaries of this process are in use and kept.
+fn remove_stale_temporaries(opts: &pipeline::RunOptions, status: &Path) -> anyhow::Result<()> {
+    let mut outputs = pipeline::output_paths(opts)?;
+    outputs.push(status.to_path_buf());
     let prefixes: Vec<String> = outputs
         .iter()
         .filter_map(|p| p.file_name())
         .map(|n| format!(".{}.tmp-", n.to_string_lossy()))
         .collect();
+    let ours = format!(".tmp-{}", std::process::id());
     let Ok(read) = fs::read_dir(&opts.out_dir) else {
         return Ok(());
     };
     for dirent in read.flatten() {
         let name = dirent.file_name().to_string_lossy().into_owned();
-        if prefixes.iter().any(|p| name.starts_with(p)) {
+        if prefixes.iter().any(|p| name.starts_with(p)) && !name.ends_with(&ours) {
             let _ = fs::remove_file(dirent.path());
         }
     }
