@@ -197,7 +197,10 @@ mod tests {
         }
     }
 
-    fn snap(files: &[(&str, u64, i64)]) -> Snapshot {
+    /// (name, size, mtime) of each top-level file.
+    type Files<'a> = &'a [(&'a str, u64, i64)];
+
+    fn snap(files: Files) -> Snapshot {
         Snapshot {
             entries: files.iter().map(|&(n, s, m)| file(n, s, m)).collect(),
             ..Default::default()
@@ -246,7 +249,7 @@ mod tests {
     #[test]
     fn slow_chunked_drop_starts_only_after_settling() {
         let mut d = Detector::new(SETTLE);
-        let steps: &[(f64, &[(&str, u64, i64)], bool)] = &[
+        let steps: &[(f64, Files, bool)] = &[
             (0.0, &[("part.glb", 4096, 1)], false),
             (0.8, &[("part.glb", 8192, 2)], false),
             (1.6, &[("part.glb", 12288, 3), ("part.csv", 0, 3)], false),
@@ -272,10 +275,10 @@ mod tests {
         d.finished(&JobId::Drop("part".into()));
         assert!(d.is_idle());
         // Same inputs later in the same run: not again.
-        let files: &[(&str, u64, i64)] = &[("part.glb", 16000, 4), ("part.csv", 100, 6)];
+        let files: Files = &[("part.glb", 16000, 4), ("part.csv", 100, 6)];
         assert!(started(&d.observe(t(20.0), &snap(files))).is_empty());
         // A new version of the csv: settles, then runs again.
-        let files: &[(&str, u64, i64)] = &[("part.glb", 16000, 4), ("part.csv", 120, 30)];
+        let files: Files = &[("part.glb", 16000, 4), ("part.csv", 120, 30)];
         assert!(started(&d.observe(t(30.0), &snap(files))).is_empty());
         assert_eq!(
             started(&d.observe(t(32.0), &snap(files))),
