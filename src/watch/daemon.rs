@@ -113,6 +113,7 @@ pub fn run(opts: &WatchOptions) -> anyhow::Result<()> {
     let start = Instant::now();
     let mut detector = Detector::new(opts.settle);
     let mut in_flight = 0usize;
+    let mut fatal = None;
 
     std::thread::scope(|s| {
         for i in 0..workers {
@@ -151,6 +152,14 @@ pub fn run(opts: &WatchOptions) -> anyhow::Result<()> {
                 next_rescan = now + opts.rescan;
                 let snap = match scan::scan(&root) {
                     Ok(snap) => snap,
+                    Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+                        fatal = Some(anyhow::anyhow!(
+                            "the watched folder {} is gone",
+                            root.display()
+                        ));
+                        shutdown.store(true, Ordering::Relaxed); // stop the running jobs too
+                        break;
+                    }
                     Err(e) => {
                         tracing::error!("cannot read {}: {e}", root.display());
                         std::thread::sleep(TICK);
@@ -210,7 +219,7 @@ pub fn run(opts: &WatchOptions) -> anyhow::Result<()> {
     drop(debouncer);
     lock.release();
     tracing::info!("stopped");
-    Ok(())
+    fatal.map_or(Ok(()), Err)
 }
 
 /// Take jobs in order until the queue closes; a job's panic is caught in `runner::run`.
