@@ -17,3 +17,4 @@ pub mod pipeline;
 pub mod simplify;
 pub mod sweep;
 pub mod voxel;
+pub mod watch;

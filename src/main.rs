@@ -4,6 +4,7 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Duration;
 
 use clap::{Args, Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -12,6 +13,7 @@ use sweptvol::error::InputError;
 use sweptvol::grid::{Accuracy, Overrides};
 use sweptvol::pipeline::{self, Backend, BackendChoice, RunOptions};
 use sweptvol::sweep::Observer;
+use sweptvol::watch::{self, WatchOptions};
 
 #[derive(Parser)]
 #[command(
@@ -28,6 +30,44 @@ struct Cli {
 enum Command {
     /// Sweep a glTF generator along a trajectory CSV and write the six depth images and a report.
     Run(RunArgs),
+    /// Watch a folder for jobs (job folders and dropped .glb + .csv pairs) and run them; see
+    /// docs/exchange-protocol.md.
+    Watch(WatchArgs),
+}
+
+#[derive(Args)]
+struct WatchArgs {
+    /// The watched folder (must exist). Nothing outside it is read or written.
+    #[arg(value_name = "DIR")]
+    dir: PathBuf,
+    /// Process what is waiting, then exit (for cron and CI).
+    #[arg(long)]
+    once: bool,
+    /// Seconds a dropped .glb + .csv pair must stay unchanged before it is taken.
+    #[arg(long, value_name = "SECS", default_value_t = 2.0)]
+    settle: f64,
+    /// Seconds between full rescans of the folder (a safety net for lost events).
+    #[arg(long, value_name = "SECS", default_value_t = 10.0)]
+    rescan: f64,
+    /// Jobs run at once (CPU backend only; a GPU runs one job at a time).
+    #[arg(long, value_name = "N", default_value_t = 1)]
+    jobs: usize,
+    /// Where sweeps run; the GPU device is acquired once and reused by every job.
+    #[arg(long, value_enum, default_value_t = BackendChoice::Auto)]
+    backend: BackendChoice,
+    /// Voxels along the longest edge, for jobs whose job.json names neither resolution nor
+    /// tolerance, and for drops [default: 256].
+    #[arg(long, value_name = "N", conflicts_with = "tolerance")]
+    resolution: Option<u32>,
+    /// Default error bound ε_global in world units (instead of --resolution).
+    #[arg(long, value_name = "T")]
+    tolerance: Option<f64>,
+    /// Inputs of one job larger than this in all are refused before they are parsed.
+    #[arg(long, value_name = "BYTES", default_value_t = 2 << 30)]
+    max_input_bytes: u64,
+    /// Only warnings and errors in the log.
+    #[arg(long, short)]
+    quiet: bool,
 }
 
 #[derive(Args)]
@@ -149,10 +189,38 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+fn watch(args: WatchArgs) -> anyhow::Result<()> {
+    let secs = |flag: &str, v: f64| {
+        if v.is_finite() && v >= 0.0 {
+            Ok(Duration::from_secs_f64(v))
+        } else {
+            Err(anyhow::anyhow!(
+                "--{flag} {v}: give a number of seconds >= 0"
+            ))
+        }
+    };
+    let opts = WatchOptions {
+        dir: args.dir,
+        once: args.once,
+        settle: secs("settle", args.settle)?,
+        rescan: secs("rescan", args.rescan)?.max(Duration::from_millis(100)),
+        jobs: args.jobs,
+        backend: args.backend,
+        default_accuracy: match (args.resolution, args.tolerance) {
+            (_, Some(t)) => Accuracy::Tolerance(t),
+            (Some(n), None) => Accuracy::Resolution(n),
+            (None, None) => Accuracy::Resolution(256),
+        },
+        max_input_bytes: args.max_input_bytes,
+    };
+    watch::run(&opts)
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let quiet = match &cli.command {
         Command::Run(a) => a.quiet,
+        Command::Watch(a) => a.quiet,
     };
     let default_level = if quiet { "warn" } else { "info" };
     tracing_subscriber::fmt()
@@ -165,6 +233,7 @@ fn main() -> ExitCode {
         .init();
     let result = match cli.command {
         Command::Run(args) => run(args),
+        Command::Watch(args) => watch(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -15,7 +15,7 @@ use crate::io::exr_depth::{self, ExtraMeta, Side};
 use crate::io::{atomic, gltf_in, gltf_out, trajectory};
 use crate::job::{self, PartRange, SweepInput};
 use crate::simplify::{simplify, SimplifyOptions, SimplifyStats};
-use crate::sweep::{cpu, gpu::Gpu, Observer};
+use crate::sweep::{cpu, gpu::Gpu, Cancelled, Observer};
 use crate::voxel::Classifier;
 
 /// Smallest piece the simplifier's adaptive region tests refine to before rejecting, voxels.
@@ -324,14 +324,17 @@ pub fn execute(
         input.posed_triangles(),
         backend.describe()
     );
+    checkpoint(observer, "sweep")?;
     observer.begin(crate::sweep::total_poses(input), input.posed_triangles());
     let images = backend.sweep(input, observer)?;
     let t_sweep = Instant::now();
 
+    checkpoint(observer, "classify")?;
     tracing::info!("classifying voxels and extracting the boundary mesh");
     let classifier = Classifier::new(&images);
     let start = extract::extract(&classifier);
     let t_extract = Instant::now();
+    checkpoint(observer, "simplify")?;
     tracing::info!(
         "simplifying {} triangles within the tolerance band",
         start.triangles.len()
@@ -366,6 +369,7 @@ pub fn execute(
     }
     let t_mesh = Instant::now();
 
+    checkpoint(observer, "write")?;
     let extra = ExtraMeta {
         delta: input.params.delta,
         rounding: input.rounding * h,
@@ -408,7 +412,12 @@ pub fn execute(
         "triangles_start": mesh_report.triangles_start,
         "triangles_final": mesh_report.triangles_final,
     });
-    let glb = gltf_out::glb_bytes(&mesh, &input.grid, &format!("{stem} swept volume"), extras)?;
+    let glb = gltf_out::glb_bytes(
+        &mesh,
+        &input.grid,
+        format!("{stem} swept volume").trim_start(),
+        extras,
+    )?;
     staged.write(&job.outputs[0], &glb)?;
     if opts.keep_start_mesh {
         let name = format!("{stem} voxel boundary");
@@ -485,6 +494,20 @@ pub fn execute(
             );
         }
     }
+    // Last chance to stop: dropping `staged` removes every temporary file.
+    if observer.cancelled() {
+        return Err(Cancelled.into());
+    }
     staged.commit()?;
     Ok(report)
+}
+
+/// Between stages: stop if the observer asks to, else announce the next stage. Inside a stage
+/// only the sweep checks; a cancel waits at most for the stage in progress to end.
+fn checkpoint(observer: &dyn Observer, stage: &'static str) -> anyhow::Result<()> {
+    if observer.cancelled() {
+        return Err(Cancelled.into());
+    }
+    observer.stage(stage);
+    Ok(())
 }

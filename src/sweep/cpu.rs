@@ -2,6 +2,7 @@
 //! and atomic min/max, run on rayon threads. Keep the two in step.
 
 use std::sync::atomic::{AtomicU32, Ordering};
+use std::time::Instant;
 
 use rayon::prelude::*;
 use wide::f32x8;
@@ -13,6 +14,8 @@ use crate::job::SweepInput;
 
 /// Triangles one rayon task renders under one pose.
 const TRIANGLES_PER_TASK: usize = 512;
+/// Target duration of one batch of poses: how often progress and cancellation are checked.
+const BATCH_SECONDS: f64 = 0.25;
 
 /// Render every posed triangle's offset into the six depth images.
 pub fn sweep(input: &SweepInput, observer: &dyn Observer) -> Result<DepthImages, Cancelled> {
@@ -26,12 +29,19 @@ pub fn sweep(input: &SweepInput, observer: &dyn Observer) -> Result<DepthImages,
             &input.triangles[part.tri_start as usize..(part.tri_start + part.tri_count) as usize];
         let poses =
             &input.poses[part.pose_start as usize..(part.pose_start + part.pose_count) as usize];
-        // Batches of poses so that progress and cancellation come every ~4M posed triangles.
-        let batch = (4_000_000 / tris.len().max(1)).clamp(1, 4096);
-        for pose_batch in poses.chunks(batch) {
+        // Batches of poses sized so that each takes about BATCH_SECONDS: progress and
+        // cancellation stay prompt whatever the triangles cost. Starts at ~64k posed triangles
+        // and adapts to the measured rate. The result does not depend on batching (atomic
+        // min/max).
+        let mut batch = (65_536 / tris.len().max(1)).clamp(1, 4096);
+        let mut rest = poses;
+        while !rest.is_empty() {
             if observer.cancelled() {
                 return Err(Cancelled);
             }
+            let (pose_batch, tail) = rest.split_at(batch.min(rest.len()));
+            rest = tail;
+            let t0 = Instant::now();
             pose_batch
                 .par_iter()
                 .flat_map(|m| tris.par_chunks(TRIANGLES_PER_TASK).map(move |c| (m, c)))
@@ -43,6 +53,9 @@ pub fn sweep(input: &SweepInput, observer: &dyn Observer) -> Result<DepthImages,
                         }
                     }
                 });
+            let secs = t0.elapsed().as_secs_f64().max(1e-6);
+            let scaled = (pose_batch.len() as f64 * BATCH_SECONDS / secs) as usize;
+            batch = scaled.clamp(batch / 2, batch * 2).clamp(1, 4096);
             done += (pose_batch.len() * tris.len()) as u64;
             observer.progress(done, total);
         }

@@ -14,13 +14,16 @@ pub const SLOTS: usize = 2;
 pub const EMPTY_MIN: u32 = 0xFF80_0000;
 pub const EMPTY_MAX: u32 = 0x007F_FFFF;
 
-/// Watches a long sweep: progress, and a way to stop early.
+/// Watches a long job: progress, and a way to stop early. `pipeline::execute` also reports its
+/// later stages and checks `cancelled` between them.
 pub trait Observer: Sync {
+    /// A stage of `pipeline::execute` begins: "sweep", "classify", "simplify" or "write".
+    fn stage(&self, _stage: &'static str) {}
     /// The sweep is about to render `poses` poses, `posed_triangles` posed triangles in all.
     fn begin(&self, _poses: u64, _posed_triangles: u64) {}
     /// `done` of `total` posed triangles are rendered.
     fn progress(&self, _done: u64, _total: u64) {}
-    /// Checked between batches; true stops the sweep with [`Cancelled`].
+    /// Checked between sweep batches and between pipeline stages; true stops with [`Cancelled`].
     fn cancelled(&self) -> bool {
         false
     }

@@ -1,0 +1,15 @@
+//! `sweptvol watch DIR`: a folder as the interface to sweptvol (docs/exchange-protocol.md).
+//!
+//! `protocol` owns the names and file schemas, `scan` reads the folder, `detector` (pure)
+//! decides which jobs are ready, `runner` runs one job, `status` writes its status file, `lock`
+//! keeps one daemon per folder, and `daemon` ties them into the event loop.
+
+pub mod daemon;
+pub mod detector;
+pub mod lock;
+pub mod protocol;
+pub mod runner;
+pub mod scan;
+pub mod status;
+
+pub use daemon::{run, WatchOptions};

@@ -1,0 +1,367 @@
+//! The exchange protocol (docs/exchange-protocol.md): which names in a watched folder mean what,
+//! and the schemas of `job.json` (read) and `status.json` (written). Keep the doc in step.
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::InputError;
+use crate::grid::{Accuracy, Overrides};
+use crate::pipeline::{BackendChoice, RunOptions};
+
+/// A folder being written by a client: never read. Renaming it without the suffix commits it.
+pub const PARTIAL_SUFFIX: &str = ".partial";
+/// The daemon's own folder inside the watched one (lock, heartbeat).
+pub const CONTROL_DIR: &str = ".sweptvol";
+/// Created by a client in a job folder to ask the daemon to stop that job.
+pub const CANCEL: &str = "cancel";
+pub const JOB_JSON: &str = "job.json";
+pub const TRAJECTORY: &str = "trajectory.csv";
+pub const GENERATOR_GLB: &str = "generator.glb";
+pub const GENERATOR_GLTF: &str = "generator.gltf";
+/// Drop inputs: `<name>.glb` and `<name>.csv` straight in the watched folder.
+pub const DROP_GENERATOR_EXT: &str = "glb";
+pub const DROP_TRAJECTORY_EXT: &str = "csv";
+
+/// Names the daemon writes: bare in a job folder, `<name>.`-prefixed for a drop. A file with
+/// one of these names (bare or prefixed) is never taken as an input.
+pub const OUTPUT_NAMES: [&str; 10] = [
+    "swept.glb",
+    "start.glb",
+    "depth-xmin.exr",
+    "depth-xmax.exr",
+    "depth-ymin.exr",
+    "depth-ymax.exr",
+    "depth-zmin.exr",
+    "depth-zmax.exr",
+    "report.json",
+    "status.json",
+];
+
+/// The status file's bare name (`<name>.status.json` for a drop).
+pub const STATUS: &str = "status.json";
+
+/// Whether `name` is something the daemon writes (bare or `<stem>.`-prefixed).
+pub fn is_output_name(name: &str) -> bool {
+    OUTPUT_NAMES.iter().any(|o| {
+        name == *o
+            || name
+                .strip_suffix(o)
+                .is_some_and(|stem| stem.len() > 1 && stem.ends_with('.'))
+    })
+}
+
+/// What an entry at the top of the watched folder is.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Role {
+    /// A committed job folder `<job>/`.
+    JobFolder,
+    /// `<name>.glb` of a drop; holds the stem.
+    DropGenerator(String),
+    /// `<name>.csv` of a drop; holds the stem.
+    DropTrajectory(String),
+    /// Hidden names (temporary files, `.sweptvol`), `.partial` folders, outputs, anything else.
+    Ignored,
+}
+
+/// Classify a top-level entry by name and kind (after following a symlink).
+pub fn classify(name: &str, is_dir: bool) -> Role {
+    if name.starts_with('.') || name.ends_with(PARTIAL_SUFFIX) {
+        return Role::Ignored;
+    }
+    if is_dir {
+        return Role::JobFolder;
+    }
+    if is_output_name(name) {
+        return Role::Ignored;
+    }
+    match name.rsplit_once('.') {
+        Some((stem, ext)) if !stem.is_empty() && ext == DROP_GENERATOR_EXT => {
+            Role::DropGenerator(stem.into())
+        }
+        Some((stem, ext)) if !stem.is_empty() && ext == DROP_TRAJECTORY_EXT => {
+            Role::DropTrajectory(stem.into())
+        }
+        _ => Role::Ignored,
+    }
+}
+
+/// A job: a committed folder or a drop pair, by name. The two kinds have separate namespaces.
+#[derive(Clone, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum JobId {
+    Folder(String),
+    Drop(String),
+}
+
+impl JobId {
+    pub fn name(&self) -> &str {
+        match self {
+            JobId::Folder(n) | JobId::Drop(n) => n,
+        }
+    }
+
+    /// Where the job's outputs and status go.
+    pub fn out_dir(&self, root: &Path) -> PathBuf {
+        match self {
+            JobId::Folder(n) => root.join(n),
+            JobId::Drop(_) => root.to_path_buf(),
+        }
+    }
+
+    /// The output stem `pipeline` uses: empty (bare names) in a job folder.
+    pub fn stem(&self) -> &str {
+        match self {
+            JobId::Folder(_) => "",
+            JobId::Drop(n) => n,
+        }
+    }
+
+    pub fn status_path(&self, root: &Path) -> PathBuf {
+        match self {
+            JobId::Folder(n) => root.join(n).join(STATUS),
+            JobId::Drop(n) => root.join(format!("{n}.{STATUS}")),
+        }
+    }
+
+    /// The `cancel` file; drops have none (delete the inputs, or stop the daemon).
+    pub fn cancel_path(&self, root: &Path) -> Option<PathBuf> {
+        match self {
+            JobId::Folder(n) => Some(root.join(n).join(CANCEL)),
+            JobId::Drop(_) => None,
+        }
+    }
+}
+
+impl std::fmt::Display for JobId {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            JobId::Folder(n) => write!(f, "{n}/"),
+            JobId::Drop(n) => write!(f, "{n}.glb + {n}.csv"),
+        }
+    }
+}
+
+/// One input file as last seen: a job is re-run when any of these change.
+#[derive(Clone, Debug, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
+pub struct FileStamp {
+    /// Relative to the job folder (or the watched folder for a drop), `/`-separated.
+    pub file: String,
+    pub size: u64,
+    /// Modification time, nanoseconds since the Unix epoch.
+    pub mtime_ns: i64,
+}
+
+/// A job's inputs, sorted by file name: equal fingerprints mean unchanged inputs.
+pub type Fingerprint = Vec<FileStamp>;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum State {
+    Queued,
+    Running,
+    Done,
+    Failed,
+    Cancelled,
+}
+
+impl State {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            State::Queued => "queued",
+            State::Running => "running",
+            State::Done => "done",
+            State::Failed => "failed",
+            State::Cancelled => "cancelled",
+        }
+    }
+
+    /// A finished job is not run again while its inputs stay the same.
+    pub fn is_finished(self) -> bool {
+        matches!(self, State::Done | State::Failed | State::Cancelled)
+    }
+}
+
+/// `status.json`: replaced atomically at every change.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Status {
+    pub state: State,
+    /// "queued", "reading", "sweep", "classify", "simplify", "write", or "" when finished.
+    pub stage: String,
+    /// 0 to 1.
+    pub progress: f64,
+    pub message: String,
+    /// The job's display name (`name` in job.json, else the folder or drop name).
+    pub name: String,
+    pub sweptvol_version: String,
+    pub timings: Timings,
+    /// For a failed job whose input is at fault: where and how to fix it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub error: Option<ErrorInfo>,
+    /// The inputs this status is about; a restart re-runs the job when they differ.
+    pub inputs: Fingerprint,
+    /// Output file names, relative to the status file's folder (when done).
+    #[serde(default)]
+    pub outputs: Vec<String>,
+}
+
+/// Wall-clock times, seconds since the Unix epoch, and durations in seconds.
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+pub struct Timings {
+    pub queued_at: Option<f64>,
+    pub started_at: Option<f64>,
+    pub finished_at: Option<f64>,
+    /// From start to finish (or to now while running).
+    pub seconds: Option<f64>,
+    /// Per-stage seconds from the report (when done).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stages: Option<serde_json::Value>,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct ErrorInfo {
+    pub file: PathBuf,
+    pub line: Option<u64>,
+    pub column: Option<String>,
+    pub fix: String,
+}
+
+impl From<&InputError> for ErrorInfo {
+    fn from(e: &InputError) -> Self {
+        ErrorInfo {
+            file: e.file.clone(),
+            line: e.line,
+            column: e.column.clone(),
+            fix: e.fix.clone(),
+        }
+    }
+}
+
+/// What a restart needs from an existing status file; anything unreadable counts as absent.
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+pub struct Recorded {
+    pub state: State,
+    pub inputs: Fingerprint,
+}
+
+pub fn parse_recorded(bytes: &[u8]) -> Option<Recorded> {
+    serde_json::from_slice(bytes).ok()
+}
+
+/// `job.json`: the keys mirror `sweptvol run`'s options. Unknown keys are errors.
+#[derive(Clone, Debug, Default, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct JobOptions {
+    pub resolution: Option<u32>,
+    pub tolerance: Option<f64>,
+    pub delta: Option<f64>,
+    pub epsilon: Option<f64>,
+    pub backend: Option<BackendChoice>,
+    pub name: Option<String>,
+    pub target_triangles: Option<usize>,
+    pub keep_start_mesh: Option<bool>,
+}
+
+const JOB_KEYS: &str =
+    "resolution, tolerance, delta, epsilon, backend, name, target_triangles, keep_start_mesh";
+
+/// Parse `job.json` bytes; `path` names the file in errors (with serde_json's line and column).
+pub fn parse_job_options(path: &Path, bytes: &[u8]) -> Result<JobOptions, InputError> {
+    let opts: JobOptions = serde_json::from_slice(bytes).map_err(|e| {
+        InputError::new(
+            path,
+            format!("invalid job options: {e}"),
+            format!(
+                "write one JSON object using only the keys {JOB_KEYS} (docs/exchange-protocol.md)"
+            ),
+        )
+        .at_line(e.line() as u64)
+        .in_column(format!("column {}", e.column()))
+    })?;
+    if opts.resolution.is_some() && opts.tolerance.is_some() {
+        return Err(InputError::new(
+            path,
+            "both \"resolution\" and \"tolerance\" are given",
+            "keep one of them: each sets the voxel size",
+        ));
+    }
+    Ok(opts)
+}
+
+impl JobOptions {
+    /// The options for `pipeline`, with `default_accuracy` where the job names none. The
+    /// daemon owns the output names, so it replaces its own earlier outputs.
+    pub fn run_options(
+        &self,
+        generator: PathBuf,
+        trajectory: PathBuf,
+        id: &JobId,
+        root: &Path,
+        default_accuracy: Accuracy,
+    ) -> RunOptions {
+        let accuracy = match (self.resolution, self.tolerance) {
+            (_, Some(t)) => Accuracy::Tolerance(t),
+            (Some(n), None) => Accuracy::Resolution(n),
+            (None, None) => default_accuracy,
+        };
+        RunOptions {
+            generator,
+            trajectory,
+            out_dir: id.out_dir(root),
+            name: Some(id.stem().to_string()),
+            accuracy,
+            overrides: Overrides {
+                delta: self.delta,
+                epsilon: self.epsilon,
+            },
+            overwrite: true,
+            target_triangles: self.target_triangles.unwrap_or(0),
+            keep_start_mesh: self.keep_start_mesh.unwrap_or(false),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn output_names_are_never_inputs() {
+        for name in [
+            "swept.glb",
+            "a.swept.glb",
+            "a.b.depth-zmax.exr",
+            "a.status.json",
+            "a.report.json",
+        ] {
+            assert!(is_output_name(name), "{name}");
+        }
+        for name in ["aswept.glb", ".swept.glb", "a.glb", "report.csv"] {
+            assert!(!is_output_name(name), "{name}");
+        }
+        assert_eq!(classify("a.swept.glb", false), Role::Ignored);
+        assert_eq!(
+            classify("a.b.glb", false),
+            Role::DropGenerator("a.b".into())
+        );
+        assert_eq!(classify("a.csv", false), Role::DropTrajectory("a".into()));
+        assert_eq!(classify(".a.glb.tmp-12", false), Role::Ignored);
+        assert_eq!(classify("job.partial", true), Role::Ignored);
+        assert_eq!(classify(".sweptvol", true), Role::Ignored);
+        assert_eq!(classify("job", true), Role::JobFolder);
+        assert_eq!(classify("notes.txt", false), Role::Ignored);
+    }
+
+    #[test]
+    fn job_json_unknown_key_names_line_and_column() {
+        let p = Path::new("job/job.json");
+        let e =
+            parse_job_options(p, b"{\n  \"resolution\": 32,\n  \"resolutoin\": 64\n}").unwrap_err();
+        assert_eq!(e.line, Some(3), "{e}");
+        assert!(e.message.contains("resolutoin"), "{e}");
+        assert!(e.fix.contains("tolerance"), "{e}");
+        assert!(parse_job_options(p, br#"{"resolution": 32, "tolerance": 0.1}"#).is_err());
+        let ok =
+            parse_job_options(p, br#"{"resolution": 32, "backend": "cpu", "name": "x"}"#).unwrap();
+        assert_eq!(ok.backend, Some(BackendChoice::Cpu));
+    }
+}

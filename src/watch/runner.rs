@@ -1,0 +1,352 @@
+//! Runs one job: find and confine its inputs, check their size, read `job.json`, then
+//! `pipeline::prepare` and `pipeline::execute`, reporting progress and polling for a cancel.
+//! Every ending (done, failed, cancelled, a panic, a shutdown) is written to the status file.
+
+use std::fs;
+use std::panic::{catch_unwind, AssertUnwindSafe};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+
+use super::protocol::{self, ErrorInfo, Fingerprint, JobId, JobOptions, State};
+use super::status::StatusFile;
+use crate::error::InputError;
+use crate::grid::Accuracy;
+use crate::pipeline::{self, Backend, BackendChoice, Report};
+use crate::sweep::{Cancelled, Observer};
+
+/// job.json larger than this is refused before it is parsed.
+const MAX_JOB_JSON_BYTES: u64 = 1 << 20;
+
+/// Where each stage starts on the 0..1 progress scale; the sweep fills the span up to classify.
+const STAGE_PROGRESS: [(&str, f64); 5] = [
+    ("reading", 0.0),
+    ("sweep", 0.05),
+    ("classify", 0.85),
+    ("simplify", 0.9),
+    ("write", 0.97),
+];
+
+/// What every job shares.
+pub struct Context<'a> {
+    /// The watched folder, canonical.
+    pub root: &'a Path,
+    /// Acquired once at start (one GPU device for the daemon's life).
+    pub backend: &'a Backend,
+    pub default_accuracy: Accuracy,
+    pub max_input_bytes: u64,
+    pub shutdown: &'a AtomicBool,
+}
+
+/// A job handed to a worker; its status file already says `queued`.
+pub struct QueuedJob {
+    pub id: JobId,
+    pub inputs: Fingerprint,
+    pub status: Arc<StatusFile>,
+}
+
+/// Run `job` to an end and record it. Returns the state written (`Queued` after a shutdown).
+pub fn run(ctx: &Context, job: &QueuedJob) -> State {
+    let status = &job.status;
+    if ctx.shutdown.load(Ordering::Relaxed) {
+        return State::Queued; // stays queued for the next start
+    }
+    status.running();
+    let observer = JobObserver {
+        status,
+        cancel: job.id.cancel_path(ctx.root),
+        shutdown: ctx.shutdown,
+    };
+    let outcome = catch_unwind(AssertUnwindSafe(|| {
+        if observer.cancelled() {
+            return Err(Cancelled.into());
+        }
+        execute(ctx, job, &observer)
+    }));
+    let (state, message, error) = match outcome {
+        Ok(Ok(report)) => {
+            let outputs: Vec<String> = report
+                .outputs
+                .iter()
+                .filter_map(|p| p.file_name().map(|n| n.to_string_lossy().into_owned()))
+                .collect();
+            let stages = serde_json::to_value(&report.timings).ok();
+            status.update(|s| {
+                s.outputs = outputs;
+                s.timings.stages = stages;
+            });
+            let message = format!(
+                "swept {} posed triangles on {}; {} triangles in the mesh",
+                report.counts.posed_triangles, report.backend, report.mesh.triangles_final
+            );
+            (State::Done, message, None)
+        }
+        Ok(Err(e)) if e.downcast_ref::<Cancelled>().is_some() => {
+            if ctx.shutdown.load(Ordering::Relaxed) {
+                let m =
+                    "interrupted by the daemon's shutdown; it runs again when the daemon starts";
+                (State::Queued, m.to_string(), None)
+            } else {
+                let m = "cancelled: the job folder has a cancel file; nothing was written";
+                (State::Cancelled, m.to_string(), None)
+            }
+        }
+        Ok(Err(e)) => {
+            let error = e.downcast_ref::<InputError>().map(ErrorInfo::from);
+            (State::Failed, format!("{e:#}"), error)
+        }
+        Err(panic) => {
+            let what = panic
+                .downcast_ref::<&str>()
+                .map(|s| s.to_string())
+                .or_else(|| panic.downcast_ref::<String>().cloned())
+                .unwrap_or_default();
+            let m =
+                format!("internal error (panic: {what}); please report it with the job's inputs");
+            (State::Failed, m, None)
+        }
+    };
+    match state {
+        State::Failed => tracing::error!("{}: failed: {message}", job.id),
+        _ => tracing::info!("{}: {}: {message}", job.id, state.as_str()),
+    }
+    status.finish(state, message, error);
+    state
+}
+
+/// Locate, confine and size-check the inputs, then run the pipeline.
+fn execute(ctx: &Context, job: &QueuedJob, observer: &JobObserver) -> anyhow::Result<Report> {
+    let root = ctx.root;
+    let (jail, generator, trajectory, job_json) = match &job.id {
+        JobId::Folder(name) => {
+            let dir = root.join(name);
+            let glb = dir.join(protocol::GENERATOR_GLB);
+            let gltf = dir.join(protocol::GENERATOR_GLTF);
+            let generator = match (exists(&glb), exists(&gltf)) {
+                (true, false) => glb,
+                (false, true) => gltf,
+                (true, true) => {
+                    return Err(InputError::new(
+                        &dir,
+                        "the job folder holds both generator.glb and generator.gltf",
+                        "keep only one generator file",
+                    )
+                    .into())
+                }
+                (false, false) => {
+                    return Err(InputError::new(
+                        &dir,
+                        "the job folder has no generator.glb or generator.gltf",
+                        "put the mesh in the job folder as generator.glb (or generator.gltf with its buffers) before renaming the .partial folder",
+                    )
+                    .into())
+                }
+            };
+            let trajectory = dir.join(protocol::TRAJECTORY);
+            if !exists(&trajectory) {
+                return Err(InputError::new(
+                    &trajectory,
+                    "the job folder has no trajectory.csv",
+                    "put the poses in the job folder as trajectory.csv before renaming the .partial folder",
+                )
+                .into());
+            }
+            let job_json = Some(dir.join(protocol::JOB_JSON)).filter(|p| exists(p));
+            (dir, generator, trajectory, job_json)
+        }
+        JobId::Drop(stem) => (
+            root.to_path_buf(),
+            root.join(format!("{stem}.{}", protocol::DROP_GENERATOR_EXT)),
+            root.join(format!("{stem}.{}", protocol::DROP_TRAJECTORY_EXT)),
+            None,
+        ),
+    };
+    let jail = jail
+        .canonicalize()
+        .map_err(|e| anyhow::anyhow!("cannot open {}: {e}", jail.display()))?;
+    for path in [Some(&generator), Some(&trajectory), job_json.as_ref()]
+        .into_iter()
+        .flatten()
+    {
+        confine(path, &jail, &job.id)?;
+    }
+    check_size(
+        &job.id,
+        &jail,
+        &job.inputs,
+        &generator,
+        &trajectory,
+        ctx.max_input_bytes,
+    )?;
+
+    let options = match &job_json {
+        Some(path) => {
+            if fs::metadata(path)?.len() > MAX_JOB_JSON_BYTES {
+                return Err(InputError::new(
+                    path,
+                    "job.json is larger than 1 MiB",
+                    "job.json holds a few options: see docs/exchange-protocol.md",
+                )
+                .into());
+            }
+            let bytes = fs::read(path).map_err(|e| {
+                InputError::new(path, format!("cannot read: {e}"), "check its permissions")
+            })?;
+            protocol::parse_job_options(path, &bytes)?
+        }
+        None => JobOptions::default(),
+    };
+    if let Some(name) = &options.name {
+        let name = name.clone();
+        job.status.update(|s| s.name = name);
+    }
+    let cpu;
+    let backend = match options.backend {
+        None | Some(BackendChoice::Auto) => ctx.backend,
+        Some(BackendChoice::Cpu) => {
+            cpu = Backend::Cpu {
+                reason: "\"backend\": \"cpu\" in job.json".into(),
+            };
+            &cpu
+        }
+        Some(BackendChoice::Gpu) => match ctx.backend {
+            Backend::Gpu(_) => ctx.backend,
+            Backend::Cpu { reason } => {
+                let path = job_json.clone().unwrap_or_default();
+                return Err(InputError::new(
+                    &path,
+                    format!("\"backend\": \"gpu\", but this daemon has no GPU ({reason})"),
+                    "remove \"backend\" (or set it to \"auto\"), or restart the daemon with --backend gpu",
+                )
+                .into());
+            }
+        },
+    };
+    let opts = options.run_options(generator, trajectory, &job.id, root, ctx.default_accuracy);
+    remove_stale_temporaries(&opts, &job.id.status_path(root))?;
+    let prepared = pipeline::prepare(&opts)?;
+    pipeline::execute(&prepared, backend, observer)
+}
+
+fn exists(path: &Path) -> bool {
+    fs::symlink_metadata(path).is_ok()
+}
+
+/// Refuse an input that is not a regular file inside `jail` (symlinks are followed and must
+/// stay inside).
+fn confine(path: &Path, jail: &Path, id: &JobId) -> Result<(), InputError> {
+    let where_ = match id {
+        JobId::Folder(_) => "the job folder",
+        JobId::Drop(_) => "the watched folder",
+    };
+    let real = path.canonicalize().map_err(|e| {
+        InputError::new(
+            path,
+            format!("cannot open: {e}"),
+            "a symbolic link must point to an existing file; better, copy the file in",
+        )
+    })?;
+    if !real.starts_with(jail) {
+        return Err(InputError::new(
+            path,
+            format!(
+                "refused: it is a symbolic link to {}, outside {where_} (nothing outside {} is read)",
+                real.display(),
+                jail.display()
+            ),
+            format!("copy the file into {where_} instead of linking to it"),
+        ));
+    }
+    if !real.is_file() {
+        return Err(InputError::new(
+            path,
+            "not a regular file",
+            "replace it with the file itself",
+        ));
+    }
+    Ok(())
+}
+
+/// Refuse oversized inputs before anything parses them.
+fn check_size(
+    id: &JobId,
+    jail: &Path,
+    inputs: &Fingerprint,
+    generator: &Path,
+    trajectory: &Path,
+    limit: u64,
+) -> Result<(), InputError> {
+    let size = |p: &Path| fs::metadata(p).map(|m| m.len()).unwrap_or(0);
+    let total: u64 = match id {
+        // Every input in the folder: a .gltf's buffers are parsed too.
+        JobId::Folder(_) => inputs.iter().map(|s| size(&jail.join(&s.file))).sum(),
+        JobId::Drop(_) => size(generator) + size(trajectory),
+    };
+    if total > limit {
+        let at = match id {
+            JobId::Folder(_) => jail.to_path_buf(),
+            JobId::Drop(_) => generator.to_path_buf(),
+        };
+        return Err(InputError::new(
+            &at,
+            format!("the inputs hold {total} bytes, more than the daemon's limit of {limit} bytes; nothing was parsed"),
+            "simplify the mesh or shorten the trajectory, or restart the daemon with a larger --max-input-bytes",
+        ));
+    }
+    Ok(())
+}
+
+/// Temporary files left by a daemon killed mid-write (`.<output>.tmp-<pid>`): removed before
+/// the job writes its own, so nothing stale lingers and no planted link is written through.
+/// The status file's temporaries of this process are in use and kept.
+fn remove_stale_temporaries(opts: &pipeline::RunOptions, status: &Path) -> anyhow::Result<()> {
+    let mut outputs = pipeline::output_paths(opts)?;
+    outputs.push(status.to_path_buf());
+    let prefixes: Vec<String> = outputs
+        .iter()
+        .filter_map(|p| p.file_name())
+        .map(|n| format!(".{}.tmp-", n.to_string_lossy()))
+        .collect();
+    let ours = format!(".tmp-{}", std::process::id());
+    let Ok(read) = fs::read_dir(&opts.out_dir) else {
+        return Ok(());
+    };
+    for dirent in read.flatten() {
+        let name = dirent.file_name().to_string_lossy().into_owned();
+        if prefixes.iter().any(|p| name.starts_with(p)) && !name.ends_with(&ours) {
+            let _ = fs::remove_file(dirent.path());
+        }
+    }
+    Ok(())
+}
+
+/// Reports stages and sweep progress to the status file; a cancel file or a shutdown stops
+/// the job at the next check (between sweep batches and between stages).
+struct JobObserver<'a> {
+    status: &'a StatusFile,
+    cancel: Option<PathBuf>,
+    shutdown: &'a AtomicBool,
+}
+
+fn stage_start(stage: &str) -> f64 {
+    STAGE_PROGRESS
+        .iter()
+        .find(|(s, _)| *s == stage)
+        .map_or(0.0, |(_, p)| *p)
+}
+
+impl Observer for JobObserver<'_> {
+    fn stage(&self, stage: &'static str) {
+        self.status.progress(Some(stage), stage_start(stage));
+    }
+
+    fn progress(&self, done: u64, total: u64) {
+        let (lo, hi) = (stage_start("sweep"), stage_start("classify"));
+        let f = done as f64 / total.max(1) as f64;
+        self.status.progress(None, lo + (hi - lo) * f);
+    }
+
+    fn cancelled(&self) -> bool {
+        self.shutdown.load(Ordering::Relaxed) || self.cancel.as_deref().is_some_and(exists)
+    }
+}
