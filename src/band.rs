@@ -76,6 +76,34 @@ const BLOCK: [[u8; 3]; 125] = {
     t
 };
 
+/// Per block offset n, the offsets whose cube is at least as near as n's to every point of the
+/// middle voxel (per axis the gap to offset 0 is 0, to ±1 at most that to ±2 on the same side),
+/// n itself excluded. An other-class cube with an other-class cube among its dominators never
+/// decides a distance, so the memo drops it.
+const DOMINATORS: [u128; 125] = {
+    let mut t = [0u128; 125];
+    let mut n = 0;
+    while n < 125 {
+        let mut m = 0;
+        while m < 125 {
+            let (bn, bm) = (BLOCK[n], BLOCK[m]);
+            let mut all = m != n;
+            let mut a = 0;
+            while a < 3 {
+                let (x, y) = (bm[a] as i32 - 2, bn[a] as i32 - 2); // candidate, dominated
+                all &= x == y || x == 0 || (x == -1 && y == -2) || (x == 1 && y == 2);
+                a += 1;
+            }
+            if all {
+                t[n] |= 1 << m;
+            }
+            m += 1;
+        }
+        n += 1;
+    }
+    t
+};
+
 /// Memoized distances to ∂W near the voxel boundary: per visited voxel, the set of voxels of the
 /// other class in its 5×5×5 block (bit n as in [`BLOCK`]).
 pub struct Proximity<'c> {
@@ -107,7 +135,8 @@ impl<'c> Proximity<'c> {
         self.opposite.len()
     }
 
-    /// The memo entry of voxel `v`: bits 0..125 as in [`BLOCK`], bit [`INSIDE_BIT`] its class.
+    /// The memo entry of voxel `v`: bits 0..125 as in [`BLOCK`] for the other-class cubes not
+    /// dominated by another ([`DOMINATORS`]), bit [`INSIDE_BIT`] its class.
     fn entry(&mut self, v: [isize; 3]) -> u128 {
         // Keys pack i+2, j+2, k+2 in 21 bits each (the grid is at most 12288 voxels wide).
         let key = (v[0] + 2) as u64 | ((v[1] + 2) as u64) << 21 | ((v[2] + 2) as u64) << 42;
@@ -117,14 +146,20 @@ impl<'c> Proximity<'c> {
         let cls = self.cls;
         let entry = *self.opposite.entry(key).or_insert_with(|| {
             let here = cls.inside(v[0], v[1], v[2]);
-            let mut m = (here as u128) << INSIDE_BIT;
+            let mut m = 0u128;
             for (n, o) in BLOCK.iter().enumerate() {
                 let [di, dj, dk] = o.map(|x| x as isize - 2);
                 if cls.inside(v[0] + di, v[1] + dj, v[2] + dk) != here {
                     m |= 1 << n;
                 }
             }
-            m
+            let mut kept = 0u128;
+            for (n, dominators) in DOMINATORS.iter().enumerate() {
+                if m >> n & 1 == 1 && m & dominators == 0 {
+                    kept |= 1 << n;
+                }
+            }
+            kept | (here as u128) << INSIDE_BIT
         });
         self.last = (key, entry);
         entry
@@ -151,9 +186,54 @@ impl<'c> Proximity<'c> {
         (best.sqrt(), entry >> INSIDE_BIT & 1 == 1)
     }
 
+    /// Whether `points` lie in one grid plane x_a = k (k an integer) and every unit square of that
+    /// plane that their bounding box meets is a face of ∂W (inside on one side, outside on the
+    /// other): then every point of their convex hull lies on ∂W, at distance 0. Flat faces of the
+    /// voxel boundary keep this through collapses, and checking it costs one lookup per square
+    /// instead of refining large pieces.
+    fn on_boundary_plane(&self, points: &[DVec3]) -> bool {
+        const MAX_SQUARES: f64 = 4096.0;
+        for a in 0..3 {
+            let k = points[0][a];
+            if k.fract() != 0.0 || points.iter().any(|p| p[a] != k) {
+                continue;
+            }
+            let (u, w) = ((a + 1) % 3, (a + 2) % 3);
+            let lo = points
+                .iter()
+                .fold(DVec3::INFINITY, |m, p| m.min(*p))
+                .floor();
+            let hi = points
+                .iter()
+                .fold(DVec3::NEG_INFINITY, |m, p| m.max(*p))
+                .ceil();
+            if (hi[u] - lo[u]) * (hi[w] - lo[w]) > MAX_SQUARES {
+                return false;
+            }
+            let k = k as isize;
+            for i in lo[u] as isize..(hi[u] as isize).max(lo[u] as isize + 1) {
+                for j in lo[w] as isize..(hi[w] as isize).max(lo[w] as isize + 1) {
+                    let mut below = [0isize; 3];
+                    below[a] = k - 1;
+                    below[u] = i;
+                    below[w] = j;
+                    let mut above = below;
+                    above[a] = k;
+                    if self.cls.inside(below[0], below[1], below[2])
+                        == self.cls.inside(above[0], above[1], above[2])
+                    {
+                        return false;
+                    }
+                }
+            }
+            return true;
+        }
+        false
+    }
+
     /// Whether every point of triangle `t` is within `limit` (< REACH) of ∂W. Adaptive: a piece
     /// with centroid c and circumradius R about c passes when dist(c) + R ≤ limit (distance is
-    /// 1-Lipschitz); it fails when dist(c) > limit (c itself is out) or R < `r_min` (not shown).
+    /// 1-Lipschitz) or when it lies on ∂W ([`Self::on_boundary_plane`]); it fails when dist(c) > limit (c itself is out) or R < `r_min` (not shown).
     /// Pieces split into four by their edge midpoints. Sound: may reject, never wrongly accepts.
     pub fn triangle_within(&mut self, t: [DVec3; 3], limit: f64, r_min: f64) -> bool {
         debug_assert!(limit < REACH && r_min > 0.0);
@@ -167,7 +247,7 @@ impl<'c> Proximity<'c> {
             let c = (t[0] + t[1] + t[2]) / 3.0;
             let r = t.iter().map(|x| (*x - c).length()).fold(0.0, f64::max);
             let (d, _) = self.distance(c);
-            if d + r <= limit {
+            if d + r <= limit || (r > limit && self.on_boundary_plane(&t)) {
                 continue;
             }
             if d > limit || r < r_min {
@@ -190,7 +270,8 @@ impl<'c> Proximity<'c> {
 
     /// Whether tetrahedron `t` misses every point inside W deeper than `limit` (< REACH) below
     /// ∂W. A piece (centroid c, circumradius R about c) passes when dist(c) + R ≤ limit, or when
-    /// c lies outside W with dist(c) ≥ R (the open ball then holds no point of W); it fails when
+    /// c lies outside W with dist(c) ≥ R (the open ball then holds no point of W), or when it is flat
+    /// on ∂W; it fails when
     /// c is inside W deeper than `limit`, or R < `r_min`. Pieces split in two at the midpoint of
     /// their longest edge. Sound: may reject, never wrongly accepts.
     pub fn tetrahedron_shallow(&mut self, t: [DVec3; 4], limit: f64, r_min: f64) -> bool {
@@ -205,7 +286,7 @@ impl<'c> Proximity<'c> {
             let c = (t[0] + t[1] + t[2] + t[3]) / 4.0;
             let r = t.iter().map(|x| (*x - c).length()).fold(0.0, f64::max);
             let (d, inside) = self.distance(c);
-            if d + r <= limit || (!inside && d >= r) {
+            if d + r <= limit || (!inside && d >= r) || (r > limit && self.on_boundary_plane(&t)) {
                 continue;
             }
             if (inside && d > limit) || r < r_min {

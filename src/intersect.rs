@@ -168,12 +168,25 @@ pub fn conflict(si: [u32; 3], s: [DVec3; 3], ti: [u32; 3], t: [DVec3; 3]) -> boo
         (t[1] - t[0]).cross(t[2] - t[0]).normalize_or_zero(),
     );
     match common.len() {
-        0 => !apart(s, ns, &t) && !apart(t, nt, &s) && triangle_distance(s, t) < TOUCH,
+        0 => {
+            if apart(s, ns, &t) || apart(t, nt, &s) {
+                false
+            } else if coplanar(s, ns, &t) {
+                !separated_in_plane(s, t, ns)
+            } else {
+                triangle_distance(s, t) < TOUCH
+            }
+        }
         1 => {
             let (i, j) = common[0];
             let p = s[i];
             let (a, b) = (s[(i + 1) % 3], s[(i + 2) % 3]);
             let (c, d) = (t[(j + 1) % 3], t[(j + 2) % 3]);
+            if coplanar(s, ns, &[c, d]) {
+                // Both lie in one plane, each inside its corner at p: they meet beyond p only
+                // if the corners overlap.
+                return corners_overlap(p, [a, b], [c, d], ns);
+            }
             if (!apart(s, ns, &[c, d]) && segment_triangle(c, d, s) < TOUCH)
                 || (!apart(t, nt, &[a, b]) && segment_triangle(a, b, t) < TOUCH)
             {
@@ -205,6 +218,27 @@ fn apart(s: [DVec3; 3], n: DVec3, points: &[DVec3]) -> bool {
     }
     let d = |p: &DVec3| n.dot(*p - s[0]);
     points.iter().all(|p| d(p) > TOUCH) || points.iter().all(|p| d(p) < -TOUCH)
+}
+
+/// Whether `points` all lie within [`TOUCH`] of the plane of `s` (unit normal `n`).
+fn coplanar(s: [DVec3; 3], n: DVec3, points: &[DVec3]) -> bool {
+    n != DVec3::ZERO && points.iter().all(|p| n.dot(*p - s[0]).abs() <= TOUCH)
+}
+
+/// For `t` within TOUCH of the plane of `s` (unit normal `n`): whether an edge normal in that
+/// plane separates their projections by more than [`TOUCH`] (the separating axis theorem for
+/// convex polygons in a plane: no such axis means they overlap).
+fn separated_in_plane(s: [DVec3; 3], t: [DVec3; 3], n: DVec3) -> bool {
+    let edges = (0..3).flat_map(|k| [s[(k + 1) % 3] - s[k], t[(k + 1) % 3] - t[k]]);
+    edges.into_iter().any(|e| {
+        let axis = n.cross(e).normalize_or_zero();
+        let span = |x: &[DVec3; 3]| {
+            let d = x.map(|p| axis.dot(p));
+            (d[0].min(d[1]).min(d[2]), d[0].max(d[1]).max(d[2]))
+        };
+        let ((slo, shi), (tlo, thi)) = (span(&s), span(&t));
+        axis != DVec3::ZERO && (tlo - shi > TOUCH || slo - thi > TOUCH)
+    })
 }
 
 /// Whether the corners at `p` of two coplanar triangles (far vertices `ab`, `cd`, normal `n`)
