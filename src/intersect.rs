@@ -259,9 +259,9 @@ fn corners_overlap(p: DVec3, ab: [DVec3; 2], cd: [DVec3; 2], n: DVec3) -> bool {
         || within(cd, mid(ab))
 }
 
-/// Triangle ids by the cells their bounding boxes meet. Entries are only added: a triangle that
-/// moves is inserted again under its new cells, so every live triangle is found in each cell its
-/// current box meets; callers skip dead and far ones.
+/// Triangle ids by the cells their bounding boxes meet, each id at most once per cell. A
+/// triangle that moves is inserted again under its new cells, so every live triangle is found in
+/// each cell its current box meets; queries prune the cells they visit.
 pub struct TriangleHash {
     cell: f64,
     cells: HashMap<u64, Vec<u32>, BuildHasherDefault<KeyHasher>>,
@@ -276,9 +276,9 @@ impl TriangleHash {
         }
     }
 
-    fn cell_range(&self, t: &[DVec3; 3]) -> ([i64; 3], [i64; 3]) {
-        let lo = t[0].min(t[1]).min(t[2]) - DVec3::splat(TOUCH);
-        let hi = t[0].max(t[1]).max(t[2]) + DVec3::splat(TOUCH);
+    fn cell_range(&self, t: &[DVec3]) -> ([i64; 3], [i64; 3]) {
+        let lo = t.iter().fold(DVec3::INFINITY, |m, p| m.min(*p)) - DVec3::splat(TOUCH);
+        let hi = t.iter().fold(DVec3::NEG_INFINITY, |m, p| m.max(*p)) + DVec3::splat(TOUCH);
         let f = |v: DVec3| {
             let c = (v / self.cell).floor();
             [c.x as i64, c.y as i64, c.z as i64]
@@ -296,18 +296,22 @@ impl TriangleHash {
         for k in lo[2]..=hi[2] {
             for j in lo[1]..=hi[1] {
                 for i in lo[0]..=hi[0] {
-                    self.cells.entry(Self::key([i, j, k])).or_default().push(id);
+                    let ids = self.cells.entry(Self::key([i, j, k])).or_default();
+                    if !ids.contains(&id) {
+                        ids.push(id);
+                    }
                 }
             }
         }
     }
 
-    /// Ids whose cells meet the box of `t` (a superset of the triangles near it), sorted, unique.
+    /// Ids whose cells meet the box of `t`'s points (a superset of the triangles near them),
+    /// sorted, unique.
     /// `current` gives a triangle's positions now, or None when it is gone: each visited cell
     /// drops the ids that are gone or have moved away from it.
     pub fn near(
         &mut self,
-        t: &[DVec3; 3],
+        t: &[DVec3],
         current: impl Fn(u32) -> Option<[DVec3; 3]>,
         out: &mut Vec<u32>,
     ) {
@@ -330,8 +334,6 @@ impl TriangleHash {
                             (plo - chi).max_element() <= TOUCH && (clo - phi).max_element() <= TOUCH
                         })
                     });
-                    ids.sort_unstable();
-                    ids.dedup();
                     out.extend_from_slice(ids);
                 }
             }

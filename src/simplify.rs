@@ -32,7 +32,7 @@ use crate::voxel::Classifier;
 const BATCH: usize = 64;
 
 /// Edge of the triangle hash's cells, grid units (triangles span a few voxels).
-const HASH_CELL: f64 = 4.0;
+const HASH_CELL: f64 = 2.0;
 
 /// What the simplifier may do, grid units.
 #[derive(Clone, Copy, Debug)]
@@ -138,9 +138,9 @@ struct Candidate {
     cost: f64,
     a: u32,
     b: u32,
-    /// Vertex versions when the candidate was computed; stale if either changed.
+    /// Vertex versions when the candidate was computed; stale if either changed (the target
+    /// is recomputed when a fresh candidate is taken, keeping the heap's entries small).
     ver: (u32, u32),
-    target: DVec3,
 }
 
 impl PartialEq for Candidate {
@@ -270,7 +270,8 @@ pub fn simplify(mesh: &Mesh, cls: &Classifier, opts: SimplifyOptions) -> (Mesh, 
             .map(|c| {
                 let worker = rayon::current_thread_index().unwrap_or(0) % proxes.len();
                 let mut prox = proxes[worker].lock().expect("one user per worker");
-                s.check(&mut prox, c.a as usize, c.b as usize, c.target)
+                let target = s.best_target(c.a, c.b).1;
+                s.check(&mut prox, c.a as usize, c.b as usize, target)
             })
             .collect();
         for outcome in checked {
@@ -310,6 +311,16 @@ pub fn simplify(mesh: &Mesh, cls: &Classifier, opts: SimplifyOptions) -> (Mesh, 
 
 impl State {
     fn candidate(&self, a: u32, b: u32) -> Candidate {
+        Candidate {
+            cost: self.best_target(a, b).0,
+            a,
+            b,
+            ver: (self.version[a as usize], self.version[b as usize]),
+        }
+    }
+
+    /// The quadric error and position of the cheapest target for collapsing edge (a, b).
+    fn best_target(&self, a: u32, b: u32) -> (f64, DVec3) {
         let (pa, pb) = (self.pos[a as usize], self.pos[b as usize]);
         let q = self.quadric[a as usize].add(&self.quadric[b as usize]);
         let mut options = vec![pa, pb, (pa + pb) / 2.0];
@@ -319,18 +330,11 @@ impl State {
                 options.push(o);
             }
         }
-        let (cost, target) = options
+        options
             .into_iter()
             .map(|v| (q.error(v), v))
             .min_by(|x, y| x.0.total_cmp(&y.0))
-            .expect("options");
-        Candidate {
-            cost,
-            a,
-            b,
-            ver: (self.version[a as usize], self.version[b as usize]),
-            target,
-        }
+            .expect("options")
     }
 
     fn neighbours(&self, v: usize) -> Vec<usize> {
@@ -499,19 +503,26 @@ impl State {
         let new: Vec<([u32; 3], [DVec3; 3])> =
             changed.iter().map(|(t, q)| (renamed(*t), *q)).collect();
         let mut near = Vec::new();
+        let fan: Vec<DVec3> = new.iter().flat_map(|(_, q)| *q).collect();
+        let (tris, pos, alive) = (&self.tris, &self.pos, &self.tri_alive);
+        let current = |u: u32| alive[u as usize].then(|| tris[u as usize].map(|x| pos[x as usize]));
+        self.hash.near(&fan, current, &mut near);
+        let (lo, hi) = fan
+            .iter()
+            .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), p| {
+                (lo.min(*p), hi.max(*p))
+            });
+        let others: Vec<([u32; 3], [DVec3; 3])> = near
+            .iter()
+            .filter(|u| around.binary_search(u).is_err())
+            .map(|&u| {
+                let ui = self.tris[u as usize];
+                (ui, ui.map(|x| self.pos[x as usize]))
+            })
+            .filter(|(_, up)| boxes_meet(&[lo, hi, hi], up))
+            .collect();
         for (k, (ti, q)) in new.iter().enumerate() {
-            let (tris, pos, alive) = (&self.tris, &self.pos, &self.tri_alive);
-            let current =
-                |u: u32| alive[u as usize].then(|| tris[u as usize].map(|x| pos[x as usize]));
-            self.hash.near(q, current, &mut near);
-            let others = near
-                .iter()
-                .filter(|u| self.tri_alive[**u as usize] && around.binary_search(u).is_err())
-                .map(|&u| {
-                    let ui = self.tris[u as usize];
-                    (ui, ui.map(|x| self.pos[x as usize]))
-                });
-            let mut pairs = others.chain(new[k + 1..].iter().copied());
+            let mut pairs = others.iter().chain(&new[k + 1..]).copied();
             if pairs.any(|(ui, up)| boxes_meet(q, &up) && conflict(*ti, *q, ui, up)) {
                 self.stats.rejected_intersection += 1;
                 return false;
