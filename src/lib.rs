@@ -15,4 +15,5 @@ pub mod model;
 pub mod pipeline;
 pub mod simplify;
 pub mod sweep;
+pub mod verify;
 pub mod voxel;
