@@ -6,15 +6,15 @@
 //! bound of the distance to the swept solid: points inside the solid count their distance to
 //! its surface, not zero). A triangle whose bound is no larger than a distance already found at
 //! some mesh point cannot raise the maximum and is done; others split into four, down to the
-//! covering radius `spacing`. The result D satisfies H <= D <= H + spacing (H the true
-//! one-sided Hausdorff distance to the posed surfaces), and `lower` <= H.
+//! covering radius `spacing`. Distances at samples are searched to within `spacing` (the
+//! candidate found is at most that much farther than the nearest). The result D satisfies
+//! H <= D <= H + 2·spacing (H the true one-sided Hausdorff distance to the posed surfaces), and
+//! `lower` <= H.
 //!
-//! dist(c) is exact: a best-first search over (pose cluster, generator BVH node) pairs with
+//! dist(c) comes from a depth-first branch-and-bound search over (pose cluster, generator BVH node) pairs with
 //! lower bounds |c - P_ref(centre)| - σ_max·ρ - spread, ending in exact point-triangle
 //! distances to posed triangles. It stops early once a candidate is at most the threshold.
 
-use std::cmp::Ordering as CmpOrdering;
-use std::collections::BinaryHeap;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Mutex;
 
@@ -33,7 +33,8 @@ pub struct DeviationPlace {
     pub point: [f64; 3],
     /// Mesh triangle index (file order).
     pub mesh_triangle: u32,
-    /// Distance from the sample to the nearest posed generator triangle.
+    /// Distance from the sample to the posed generator triangle found (within `spacing` of the
+    /// nearest).
     pub distance: f64,
     /// Covering radius of the sample's piece, added to the bound (0 where the bound is an
     /// exact point distance, the lower bound).
@@ -50,7 +51,7 @@ pub struct DeviationPlace {
 pub struct Deviation {
     /// Upper bound: every mesh point is within this of a posed generator surface.
     pub bound: f64,
-    /// Largest exact distance found at a mesh point: the true value is at least this.
+    /// A proven lower bound of the distance at some mesh point: the true value is at least this.
     pub lower: f64,
     /// Finest covering radius of the mesh samples, world units.
     pub spacing: f64,
@@ -74,34 +75,19 @@ struct Item {
     node: u32,
     cluster: u32,
 }
-impl PartialEq for Item {
-    fn eq(&self, o: &Self) -> bool {
-        self.lb == o.lb
-    }
-}
-impl Eq for Item {}
-impl PartialOrd for Item {
-    fn partial_cmp(&self, o: &Self) -> Option<CmpOrdering> {
-        Some(self.cmp(o))
-    }
-}
-impl Ord for Item {
-    // Min-heap on the lower bound.
-    fn cmp(&self, o: &Self) -> CmpOrdering {
-        o.lb.total_cmp(&self.lb)
-    }
-}
-
-/// Exact distance from `p` to the nearest posed generator triangle, or the first candidate at
-/// most `threshold` away.
-fn nearest(parts: &[PosedPart], p: DVec3, threshold: f64) -> Hit {
+/// A posed triangle within `threshold` of `p` if there is one (then `.1` is meaningless);
+/// otherwise the nearest posed triangle up to `tol` (its distance is at most the exact one plus
+/// `tol`) and a proven lower bound of the exact distance (`.1`, at least `threshold`).
+fn nearest(parts: &[PosedPart], p: DVec3, threshold: f64, tol: f64) -> (Hit, f64) {
     let mut best = Hit {
         dist: f64::INFINITY,
         part: 0,
         tri: 0,
         pose: 0,
     };
-    let mut heap = BinaryHeap::new();
+    // Depth first, nearer child first: reaches a good candidate in about one root-to-leaf walk
+    // (what the threshold needs), then prunes by the lower bounds until the result is exact.
+    let mut stack: Vec<Item> = Vec::new();
     let bound = |part: &PosedPart, node: u32, cluster: u32| -> f64 {
         let n = &part.bvh.nodes[node as usize];
         let c = &part.tree.clusters[cluster as usize];
@@ -111,16 +97,20 @@ fn nearest(parts: &[PosedPart], p: DVec3, threshold: f64) -> Hit {
         ((p - q).length() - r).max(0.0)
     };
     for (i, part) in parts.iter().enumerate() {
-        heap.push(Item {
+        stack.push(Item {
             lb: bound(part, 0, 0),
             part: i as u32,
             node: 0,
             cluster: 0,
         });
     }
-    while let Some(it) = heap.pop() {
-        if it.lb >= best.dist || best.dist <= threshold {
+    while let Some(it) = stack.pop() {
+        if best.dist <= threshold {
             break;
+        }
+        // Items pruned here have lb >= max(threshold, best - tol) >= the lower bound returned.
+        if it.lb >= best.dist || it.lb >= threshold.max(best.dist - tol) {
+            continue;
         }
         let part = &parts[it.part as usize];
         let n = &part.bvh.nodes[it.node as usize];
@@ -149,19 +139,21 @@ fn nearest(parts: &[PosedPart], p: DVec3, threshold: f64) -> Hit {
         } else {
             [(it.node, c.left), (it.node, c.right)]
         };
-        for (node, cluster) in children {
-            let lb = bound(part, node, cluster).max(it.lb);
-            if lb < best.dist {
-                heap.push(Item {
-                    lb,
-                    part: it.part,
-                    node,
-                    cluster,
-                });
+        let [x, y] = children.map(|(node, cluster)| Item {
+            lb: bound(part, node, cluster).max(it.lb),
+            part: it.part,
+            node,
+            cluster,
+        });
+        let (near, far) = if x.lb <= y.lb { (x, y) } else { (y, x) };
+        for child in [far, near] {
+            if child.lb < best.dist {
+                stack.push(child);
             }
         }
     }
-    best
+    let lower = threshold.max(best.dist - tol).max(0.0);
+    (best, lower)
 }
 
 /// A sample that sets the bound: centre, mesh triangle, distance, radius, nearest posed triangle.
@@ -181,24 +173,42 @@ pub fn check(
     let samples = AtomicU64::new(0);
     let done = AtomicU64::new(0);
     let total = tris.len() as u64;
+    // Seed the known maximum with exact distances at a few spread-out mesh vertices, so that
+    // most pieces can stop at the first close enough candidate.
+    let seeds: Vec<f64> = (0..64usize)
+        .into_par_iter()
+        .map(|k| {
+            nearest(
+                parts,
+                tris[k * tris.len() / 64][0],
+                f64::NEG_INFINITY,
+                spacing,
+            )
+            .1
+        })
+        .collect();
+    lower.store(
+        seeds.iter().cloned().fold(0.0, f64::max).to_bits(),
+        Ordering::Relaxed,
+    );
     tris.par_iter().enumerate().for_each(|(ti, tri)| {
         let mut stack = vec![*tri];
         while let Some(piece) = stack.pop() {
             samples.fetch_add(1, Ordering::Relaxed);
             let (c, r) = geom::ball(&piece);
             let known = f64::from_bits(lower.load(Ordering::Relaxed));
-            let hit = nearest(parts, c, known - r);
+            let (hit, at_least) = nearest(parts, c, known - r, spacing);
             if hit.dist + r <= known {
                 continue;
             }
-            lower.fetch_max(hit.dist.to_bits(), Ordering::Relaxed);
+            lower.fetch_max(at_least.to_bits(), Ordering::Relaxed);
             // A finest piece bounds its points by dist + r; a coarser one only proves that the
-            // maximum is at least dist (and splits).
+            // maximum is at least `at_least` (and splits).
             let terminal = r <= spacing;
             let (value, radius) = if terminal {
                 (hit.dist + r, r)
             } else {
-                (hit.dist, 0.0)
+                (at_least, 0.0)
             };
             {
                 let mut b = best.lock().expect("no panics while held");
