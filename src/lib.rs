@@ -16,5 +16,6 @@ pub mod model;
 pub mod pipeline;
 pub mod simplify;
 pub mod sweep;
+pub mod verify;
 pub mod voxel;
 pub mod watch;

@@ -33,6 +33,9 @@ enum Command {
     /// Watch a folder for jobs (job folders and dropped .glb + .csv pairs) and run them; see
     /// docs/exchange-protocol.md.
     Watch(WatchArgs),
+    /// Check any swept-volume mesh against the generator and trajectory, trusting nothing of the
+    /// sweep: containment, deviation, mesh health. Exit 0 pass, 3 certificate failed, 2 bad input.
+    Verify(VerifyArgs),
 }
 
 #[derive(Args)]
@@ -66,6 +69,32 @@ struct WatchArgs {
     #[arg(long, value_name = "BYTES", default_value_t = 2 << 30)]
     max_input_bytes: u64,
     /// Only warnings and errors in the log.
+    #[arg(long, short)]
+    quiet: bool,
+}
+
+#[derive(Args)]
+struct VerifyArgs {
+    /// The generator mesh, as given to `run`.
+    #[arg(long, value_name = "FILE")]
+    generator: PathBuf,
+    /// The poses, as given to `run`.
+    #[arg(long, value_name = "FILE")]
+    trajectory: PathBuf,
+    /// The mesh to check: any glTF 2.0 file (all triangle primitives, node transforms applied).
+    #[arg(long, value_name = "FILE")]
+    mesh: PathBuf,
+    /// Fail unless the deviation (one-sided Hausdorff distance from the mesh to the swept
+    /// volume, upper bound) is at most B world units.
+    #[arg(long, value_name = "B")]
+    bound: Option<f64>,
+    /// Finest covering radius of the samples, world units [default: mesh diagonal / 2000].
+    #[arg(long, value_name = "S")]
+    spacing: Option<f64>,
+    /// Print the report as JSON on stdout (no progress bar).
+    #[arg(long)]
+    json: bool,
+    /// No progress bar and only warnings and errors in the log.
     #[arg(long, short)]
     quiet: bool,
 }
@@ -216,11 +245,63 @@ fn watch(args: WatchArgs) -> anyhow::Result<()> {
     watch::run(&opts)
 }
 
+/// Stage names and progress on a terminal bar.
+struct VerifyBar(ProgressBar);
+
+impl sweptvol::verify::Progress for VerifyBar {
+    fn stage(&self, name: &str, total: u64) {
+        self.0.set_message(name.to_string());
+        self.0.set_length(total);
+        self.0.set_position(0);
+    }
+    fn advance(&self, done: u64, total: u64) {
+        self.0.set_length(total);
+        self.0.set_position(done);
+    }
+}
+
+/// Exit code of a verification whose certificate failed (2 stays "bad input", 1 "error").
+const EXIT_CERTIFICATE_FAILED: u8 = 3;
+
+fn verify(args: VerifyArgs) -> anyhow::Result<ExitCode> {
+    let opts = sweptvol::verify::VerifyOptions {
+        generator: args.generator,
+        trajectory: args.trajectory,
+        mesh: args.mesh,
+        bound: args.bound,
+        spacing: args.spacing,
+    };
+    let bar = if args.quiet || args.json {
+        ProgressBar::hidden()
+    } else {
+        ProgressBar::new(0).with_style(
+            ProgressStyle::with_template(
+                "{msg} {bar:40} {pos}/{len}, {elapsed} elapsed, ETA {eta}",
+            )
+            .expect("progress template"),
+        )
+    };
+    let bar = VerifyBar(bar);
+    let report = sweptvol::verify::verify(&opts, &bar)?;
+    bar.0.finish_and_clear();
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        print!("{}", report.text());
+    }
+    Ok(if report.passed {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::from(EXIT_CERTIFICATE_FAILED)
+    })
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let quiet = match &cli.command {
         Command::Run(a) => a.quiet,
         Command::Watch(a) => a.quiet,
+        Command::Verify(a) => a.quiet || a.json,
     };
     let default_level = if quiet { "warn" } else { "info" };
     tracing_subscriber::fmt()
@@ -232,11 +313,12 @@ fn main() -> ExitCode {
         .with_target(false)
         .init();
     let result = match cli.command {
-        Command::Run(args) => run(args),
-        Command::Watch(args) => watch(args),
+        Command::Run(args) => run(args).map(|()| ExitCode::SUCCESS),
+        Command::Watch(args) => watch(args).map(|()| ExitCode::SUCCESS),
+        Command::Verify(args) => verify(args),
     };
     match result {
-        Ok(()) => ExitCode::SUCCESS,
+        Ok(code) => code,
         Err(e) => {
             eprintln!("error: {e:#}");
             // 2: the input or the options are wrong; 1: anything else.

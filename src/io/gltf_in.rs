@@ -60,6 +60,32 @@ pub fn parse_generator(path: &Path, bytes: &[u8]) -> Result<Generator, InputErro
     Ok(generator)
 }
 
+/// Reads any glTF mesh file as world-space triangles (f64): every triangle primitive of the
+/// scene with node transforms applied, by the same reader, checks and errors as the generator.
+/// Used by `sweptvol verify` for the mesh under test.
+pub fn read_world_triangles(path: &Path) -> Result<Vec<[DVec3; 3]>, InputError> {
+    let generator = read_generator(path)?;
+    let mut out = Vec::with_capacity(generator.triangle_count());
+    for part in &generator.parts {
+        for t in &part.triangles {
+            let tri = t.map(|i| {
+                part.world
+                    .transform_point3(part.positions[i as usize].as_dvec3())
+            });
+            if !tri.iter().all(|v| v.is_finite()) {
+                return Err(InputError::new(
+                    path,
+                    "a vertex is not finite after applying the node transforms",
+                    "fix the node transforms (scale or translation overflow) and re-export",
+                )
+                .in_column(format!("nodes[{}]", part.node_index)));
+            }
+            out.push(tri);
+        }
+    }
+    Ok(out)
+}
+
 /// Refuse features that move or add geometry the reader would otherwise ignore: a sweep that
 /// silently leaves geometry out underestimates.
 fn refuse_ignored_geometry(path: &Path, doc: &gltf::Document) -> Result<(), InputError> {

@@ -1,0 +1,252 @@
+//! Deviation: an upper bound on the one-sided Hausdorff distance from the mesh to the swept
+//! volume, max over mesh points x of dist(x, swept volume).
+//!
+//! Each mesh triangle is a ball (centroid c, covering radius r); every point x of it has
+//! dist(x) <= dist(c) + r, where dist(c) is taken to the posed generator surfaces (an upper
+//! bound of the distance to the swept solid: points inside the solid count their distance to
+//! its surface, not zero). A triangle whose bound is no larger than a distance already found at
+//! some mesh point cannot raise the maximum and is done; others split into four, down to the
+//! covering radius `spacing`. Distances at samples are searched to within `spacing` (the
+//! candidate found is at most that much farther than the nearest). The result D satisfies
+//! H <= D <= H + 2·spacing (H the true one-sided Hausdorff distance to the posed surfaces), and
+//! `lower` <= H.
+//!
+//! dist(c) comes from a depth-first branch-and-bound search over (pose cluster, generator BVH node) pairs with
+//! lower bounds |c - P_ref(centre)| - σ_max·ρ - spread, ending in exact point-triangle
+//! distances to posed triangles. It stops early once a candidate is at most the threshold.
+
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Mutex;
+
+use glam::DVec3;
+use rayon::prelude::*;
+use serde::Serialize;
+
+use super::geom;
+use super::poses::PosedPart;
+use super::Progress;
+
+/// Where the deviation bound is reached.
+#[derive(Clone, Debug, Serialize)]
+pub struct DeviationPlace {
+    /// The mesh sample (centre of a piece of a mesh triangle), world units.
+    pub point: [f64; 3],
+    /// Mesh triangle index (file order).
+    pub mesh_triangle: u32,
+    /// Distance from the sample to the posed generator triangle found (within `spacing` of the
+    /// nearest).
+    pub distance: f64,
+    /// Covering radius of the sample's piece, added to the bound (0 where the bound is an
+    /// exact point distance, the lower bound).
+    pub radius: f64,
+    /// The nearest posed triangle: part (glTF node), triangle, pose row and CSV line.
+    pub node: usize,
+    pub node_name: String,
+    pub triangle: u32,
+    pub pose_row: Option<u32>,
+    pub csv_line: Option<u64>,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct Deviation {
+    /// Upper bound: every mesh point is within this of a posed generator surface.
+    pub bound: f64,
+    /// A proven lower bound of the distance at some mesh point: the true value is at least this.
+    pub lower: f64,
+    /// Finest covering radius of the mesh samples, world units.
+    pub spacing: f64,
+    /// Samples (mesh triangle pieces) evaluated.
+    pub samples: u64,
+    pub place: Option<DeviationPlace>,
+}
+
+/// Nearest posed triangle found by [`nearest`].
+#[derive(Clone, Copy, Debug)]
+struct Hit {
+    dist: f64,
+    part: u32,
+    tri: u32,
+    pose: u32,
+}
+
+struct Item {
+    lb: f64,
+    part: u32,
+    node: u32,
+    cluster: u32,
+}
+/// A posed triangle within `threshold` of `p` if there is one (then `.1` is meaningless);
+/// otherwise the nearest posed triangle up to `tol` (its distance is at most the exact one plus
+/// `tol`) and a proven lower bound of the exact distance (`.1`, at least `threshold`).
+fn nearest(parts: &[PosedPart], p: DVec3, threshold: f64, tol: f64) -> (Hit, f64) {
+    let mut best = Hit {
+        dist: f64::INFINITY,
+        part: 0,
+        tri: 0,
+        pose: 0,
+    };
+    // Depth first, nearer child first: reaches a good candidate in about one root-to-leaf walk
+    // (what the threshold needs), then prunes by the lower bounds until the result is exact.
+    let mut stack: Vec<Item> = Vec::new();
+    let bound = |part: &PosedPart, node: u32, cluster: u32| -> f64 {
+        let n = &part.bvh.nodes[node as usize];
+        let c = &part.tree.clusters[cluster as usize];
+        let pose = &part.poses[c.reference as usize];
+        let q = pose.matrix.transform_point3(n.centre);
+        let r = pose.sigma_max * n.radius + c.spread(part.tree.origin, n.centre, n.radius);
+        ((p - q).length() - r).max(0.0)
+    };
+    for (i, part) in parts.iter().enumerate() {
+        stack.push(Item {
+            lb: bound(part, 0, 0),
+            part: i as u32,
+            node: 0,
+            cluster: 0,
+        });
+    }
+    while let Some(it) = stack.pop() {
+        if best.dist <= threshold {
+            break;
+        }
+        // Items pruned here have lb >= max(threshold, best - tol) >= the lower bound returned.
+        if it.lb >= best.dist || it.lb >= threshold.max(best.dist - tol) {
+            continue;
+        }
+        let part = &parts[it.part as usize];
+        let n = &part.bvh.nodes[it.node as usize];
+        let c = &part.tree.clusters[it.cluster as usize];
+        if n.count > 0 && c.is_leaf() {
+            let pose_index = part.tree.perm[c.lo as usize];
+            let m = part.poses[pose_index as usize].matrix;
+            for &t in part.bvh.leaf_tris(n) {
+                let [a, b, cc] = part.bvh.tris[t as usize].map(|v| m.transform_point3(v));
+                let d = geom::dist_triangle(p, a, b, cc);
+                if d < best.dist {
+                    best = Hit {
+                        dist: d,
+                        part: it.part,
+                        tri: t,
+                        pose: pose_index,
+                    };
+                }
+            }
+            continue;
+        }
+        let own = part.poses[c.reference as usize].sigma_max * n.radius;
+        let spread = c.spread(part.tree.origin, n.centre, n.radius);
+        let children = if n.count == 0 && (c.is_leaf() || spread <= own) {
+            [(n.left, it.cluster), (n.right, it.cluster)]
+        } else {
+            [(it.node, c.left), (it.node, c.right)]
+        };
+        let [x, y] = children.map(|(node, cluster)| Item {
+            lb: bound(part, node, cluster).max(it.lb),
+            part: it.part,
+            node,
+            cluster,
+        });
+        let (near, far) = if x.lb <= y.lb { (x, y) } else { (y, x) };
+        for child in [far, near] {
+            if child.lb < best.dist {
+                stack.push(child);
+            }
+        }
+    }
+    let lower = threshold.max(best.dist - tol).max(0.0);
+    (best, lower)
+}
+
+/// A sample that sets the bound: centre, mesh triangle, distance, radius, nearest posed triangle.
+type Found = (DVec3, u32, f64, f64, Hit);
+
+/// Bound the deviation of the mesh `tris` from the posed `parts`.
+pub fn check(
+    parts: &[PosedPart],
+    tris: &[[DVec3; 3]],
+    spacing: f64,
+    progress: &dyn Progress,
+) -> Deviation {
+    // Largest exact point distance found so far (f64 bits of a non-negative number order
+    // like the number), and the largest bound of a finest-level piece with its place.
+    let lower = AtomicU64::new(0f64.to_bits());
+    let best: Mutex<(f64, Option<Found>)> = Mutex::new((0.0, None));
+    let samples = AtomicU64::new(0);
+    let done = AtomicU64::new(0);
+    let total = tris.len() as u64;
+    // Seed the known maximum with exact distances at a few spread-out mesh vertices, so that
+    // most pieces can stop at the first close enough candidate.
+    let seeds: Vec<f64> = (0..64usize)
+        .into_par_iter()
+        .map(|k| {
+            nearest(
+                parts,
+                tris[k * tris.len() / 64][0],
+                f64::NEG_INFINITY,
+                spacing,
+            )
+            .1
+        })
+        .collect();
+    lower.store(
+        seeds.iter().cloned().fold(0.0, f64::max).to_bits(),
+        Ordering::Relaxed,
+    );
+    tris.par_iter().enumerate().for_each(|(ti, tri)| {
+        let mut stack = vec![*tri];
+        while let Some(piece) = stack.pop() {
+            samples.fetch_add(1, Ordering::Relaxed);
+            let (c, r) = geom::ball(&piece);
+            let known = f64::from_bits(lower.load(Ordering::Relaxed));
+            let (hit, at_least) = nearest(parts, c, known - r, spacing);
+            if hit.dist + r <= known {
+                continue;
+            }
+            lower.fetch_max(at_least.to_bits(), Ordering::Relaxed);
+            // A finest piece bounds its points by dist + r; a coarser one only proves that the
+            // maximum is at least `at_least` (and splits).
+            let terminal = r <= spacing;
+            let (value, radius) = if terminal {
+                (hit.dist + r, r)
+            } else {
+                (at_least, 0.0)
+            };
+            {
+                let mut b = best.lock().expect("no panics while held");
+                if value > b.0 {
+                    *b = (value, Some((c, ti as u32, hit.dist, radius, hit)));
+                }
+            }
+            if !terminal {
+                stack.extend(geom::split4(&piece));
+            }
+        }
+        let d = done.fetch_add(1, Ordering::Relaxed) + 1;
+        if d % 64 == 0 || d == total {
+            progress.advance(d, total);
+        }
+    });
+    let lower = f64::from_bits(lower.into_inner());
+    let (bound, place) = best.into_inner().expect("no panics while held");
+    let place = place.map(|(c, ti, dist, r, hit)| {
+        let part = &parts[hit.part as usize];
+        let pose = &part.poses[hit.pose as usize];
+        DeviationPlace {
+            point: c.to_array(),
+            mesh_triangle: ti,
+            distance: dist,
+            radius: r,
+            node: part.node_index,
+            node_name: part.name.clone(),
+            triangle: hit.tri,
+            pose_row: pose.row,
+            csv_line: pose.line,
+        }
+    });
+    Deviation {
+        bound,
+        lower,
+        spacing,
+        samples: samples.into_inner(),
+        place,
+    }
+}

@@ -1,0 +1,306 @@
+//! Exact f64 point, segment and triangle geometry for the verifier. Shares nothing with the
+//! sweep: every function here is written from the textbook definitions.
+
+use glam::DVec3;
+
+/// Distance from `p` to the segment [a, b] (a point when a = b).
+pub fn dist_segment(p: DVec3, a: DVec3, b: DVec3) -> f64 {
+    let ab = b - a;
+    let l2 = ab.length_squared();
+    let s = if l2 > 0.0 {
+        ((p - a).dot(ab) / l2).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    (p - (a + s * ab)).length()
+}
+
+/// Distance from `p` to the closed triangle [a, b, c], any shape (degenerate included): the
+/// plane distance where p projects inside, else the nearest edge.
+pub fn dist_triangle(p: DVec3, a: DVec3, b: DVec3, c: DVec3) -> f64 {
+    let n = (b - a).cross(c - a);
+    let nn = n.length_squared();
+    if nn > 0.0 {
+        let inside = (b - a).cross(p - a).dot(n) >= 0.0
+            && (c - b).cross(p - b).dot(n) >= 0.0
+            && (a - c).cross(p - c).dot(n) >= 0.0;
+        if inside {
+            return (p - a).dot(n).abs() / nn.sqrt();
+        }
+    }
+    dist_segment(p, a, b)
+        .min(dist_segment(p, b, c))
+        .min(dist_segment(p, c, a))
+}
+
+/// Distance from `p` to the box [lo, hi] (0 inside).
+pub fn dist_box(p: DVec3, lo: DVec3, hi: DVec3) -> f64 {
+    (lo - p).max(p - hi).max(DVec3::ZERO).length()
+}
+
+/// Signed solid angle of triangle [a, b, c] seen from `p`, divided by 4π (Van Oosterom and
+/// Strackee): the triangle's share of the generalized winding number at p.
+pub fn winding_share(p: DVec3, a: DVec3, b: DVec3, c: DVec3) -> f64 {
+    let (a, b, c) = (a - p, b - p, c - p);
+    let (la, lb, lc) = (a.length(), b.length(), c.length());
+    let num = a.dot(b.cross(c));
+    let den = la * lb * lc + a.dot(b) * lc + a.dot(c) * lb + b.dot(c) * la;
+    num.atan2(den) / (2.0 * std::f64::consts::PI)
+}
+
+/// Centroid of a triangle and its covering radius: every point of the triangle is within the
+/// radius of the centroid (the farthest point of a convex hull from any point is a vertex).
+pub fn ball(t: &[DVec3; 3]) -> (DVec3, f64) {
+    let c = (t[0] + t[1] + t[2]) / 3.0;
+    let r = t.iter().map(|v| (*v - c).length()).fold(0.0, f64::max);
+    (c, r)
+}
+
+/// The four midpoint sub-triangles (same orientation). Covering radii halve.
+pub fn split4(t: &[DVec3; 3]) -> [[DVec3; 3]; 4] {
+    let [a, b, c] = *t;
+    let (ab, bc, ca) = ((a + b) / 2.0, (b + c) / 2.0, (c + a) / 2.0);
+    [[a, ab, ca], [ab, b, bc], [ca, bc, c], [ab, bc, ca]]
+}
+
+/// What a ray from an origin meets in one triangle.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Crossing {
+    Miss,
+    /// Crosses the interior: +1 leaving (along the normal (b-a)×(c-a)), -1 entering.
+    Cross(i32),
+    /// Too close to an edge, a vertex or the origin to decide in f64: try another ray.
+    Unsure,
+}
+
+/// Relative tolerance of the crossing decisions (f64 rounding is about 1e-16).
+const RAY_TOL: f64 = 1e-9;
+
+/// Signed crossing of the ray o + t·d (t > 0) with triangle [a, b, c] (Möller and Trumbore,
+/// with an explicit band of doubt around edges and the origin).
+pub fn ray_crossing(o: DVec3, d: DVec3, a: DVec3, b: DVec3, c: DVec3) -> Crossing {
+    let (e1, e2) = (b - a, c - a);
+    let pvec = d.cross(e2);
+    let det = e1.dot(pvec);
+    let scale = e1.length() * e2.length() * d.length();
+    if det.abs() <= RAY_TOL * scale {
+        // The ray is (nearly) parallel to the plane: it crosses nothing, unless it runs
+        // through the triangle, in which case a neighbour's edge test reports doubt. A
+        // degenerate triangle has det = 0 for every ray and never contributes.
+        if scale == 0.0 || !near_plane_inside(o, d, a, b, c) {
+            return Crossing::Miss;
+        }
+        return Crossing::Unsure;
+    }
+    let inv = 1.0 / det;
+    let tvec = o - a;
+    let u = tvec.dot(pvec) * inv;
+    let qvec = tvec.cross(e1);
+    let v = d.dot(qvec) * inv;
+    if u < -RAY_TOL || v < -RAY_TOL || u + v > 1.0 + RAY_TOL {
+        return Crossing::Miss;
+    }
+    let t = e2.dot(qvec) * inv; // in units of |d|
+    let size = e1.length().max(e2.length()) / d.length();
+    if t < -RAY_TOL * size {
+        return Crossing::Miss;
+    }
+    if u <= RAY_TOL || v <= RAY_TOL || u + v >= 1.0 - RAY_TOL || t <= RAY_TOL * size {
+        return Crossing::Unsure;
+    }
+    // det = -d·n: det < 0 means the ray leaves along the normal.
+    Crossing::Cross(if det < 0.0 { 1 } else { -1 })
+}
+
+/// Whether the ray passes within a small band of the triangle's box (for near-parallel rays).
+fn near_plane_inside(o: DVec3, d: DVec3, a: DVec3, b: DVec3, c: DVec3) -> bool {
+    let lo = a.min(b).min(c);
+    let hi = a.max(b).max(c);
+    let pad = DVec3::splat((hi - lo).max_element() * 1e-6);
+    ray_hits_box(o, d.recip(), lo - pad, hi + pad, f64::INFINITY)
+}
+
+/// Slab test: does the ray o + t·d, 0 <= t <= t_max, meet the box? `inv_d` = 1/d per axis.
+pub fn ray_hits_box(o: DVec3, inv_d: DVec3, lo: DVec3, hi: DVec3, t_max: f64) -> bool {
+    let t1 = (lo - o) * inv_d;
+    let t2 = (hi - o) * inv_d;
+    // NaN (0·inf on a slab face) counts as "inside the slab": conservative for a traversal.
+    let near = t1.min(t2);
+    let far = t1.max(t2);
+    let t_near = [near.x, near.y, near.z, 0.0]
+        .into_iter()
+        .filter(|x| !x.is_nan())
+        .fold(f64::NEG_INFINITY, f64::max);
+    let t_far = [far.x, far.y, far.z, t_max]
+        .into_iter()
+        .filter(|x| !x.is_nan())
+        .fold(f64::INFINITY, f64::min);
+    t_near <= t_far * (1.0 + 1e-12) + 1e-300
+}
+
+/// 6 × signed volume of the tetrahedron (a, b, c, d): positive when d is on the side of the
+/// triangle [a, b, c]'s normal... negated, as the classic orient3d.
+fn orient(a: DVec3, b: DVec3, c: DVec3, d: DVec3) -> f64 {
+    (a - d).dot((b - d).cross(c - d))
+}
+
+/// Whether segment [p, q] crosses the interior of triangle [a, b, c] strictly (touching,
+/// grazing and coplanar cases are not counted).
+pub fn segment_crosses_triangle(p: DVec3, q: DVec3, a: DVec3, b: DVec3, c: DVec3) -> bool {
+    let (op, oq) = (orient(a, b, c, p), orient(a, b, c, q));
+    if !(op > 0.0 && oq < 0.0 || op < 0.0 && oq > 0.0) {
+        return false;
+    }
+    let s1 = orient(p, q, a, b);
+    let s2 = orient(p, q, b, c);
+    let s3 = orient(p, q, c, a);
+    s1 > 0.0 && s2 > 0.0 && s3 > 0.0 || s1 < 0.0 && s2 < 0.0 && s3 < 0.0
+}
+
+/// Whether two triangles intersect in a way a strict edge-through-interior test can see: some
+/// edge of one crosses the interior of the other. Coplanar overlaps are not detected.
+pub fn triangles_cross(t: &[DVec3; 3], u: &[DVec3; 3]) -> bool {
+    (0..3).any(|i| segment_crosses_triangle(t[i], t[(i + 1) % 3], u[0], u[1], u[2]))
+        || (0..3).any(|i| segment_crosses_triangle(u[i], u[(i + 1) % 3], t[0], t[1], t[2]))
+}
+
+/// Largest and smallest singular values of the 3x3 matrix with columns `m`, as a sound upper
+/// bound of σ_max and lower bound of σ_min (eigenvalues of MᵀM by the trigonometric formula,
+/// widened by a relative 1e-9 against rounding; σ_max also capped by the Frobenius norm).
+pub fn singular_bounds(m: [DVec3; 3]) -> (f64, f64) {
+    let g = |i: usize, j: usize| m[i].dot(m[j]);
+    let (a11, a22, a33, a12, a13, a23) = (g(0, 0), g(1, 1), g(2, 2), g(0, 1), g(0, 2), g(1, 2));
+    let frob2 = a11 + a22 + a33;
+    let q = frob2 / 3.0;
+    let p1 = a12 * a12 + a13 * a13 + a23 * a23;
+    let p2 = (a11 - q).powi(2) + (a22 - q).powi(2) + (a33 - q).powi(2) + 2.0 * p1;
+    let (l_max, l_min) = if p2 <= 1e-30 * frob2 * frob2 {
+        (q, q)
+    } else {
+        let p = (p2 / 6.0).sqrt();
+        let b = |x: f64| x / p;
+        let (b11, b22, b33, b12, b13, b23) =
+            (b(a11 - q), b(a22 - q), b(a33 - q), b(a12), b(a13), b(a23));
+        let det = b11 * (b22 * b33 - b23 * b23) - b12 * (b12 * b33 - b23 * b13)
+            + b13 * (b12 * b23 - b22 * b13);
+        let phi = (det / 2.0).clamp(-1.0, 1.0).acos() / 3.0;
+        let l1 = q + 2.0 * p * phi.cos();
+        let l3 = q + 2.0 * p * (phi + 2.0 * std::f64::consts::PI / 3.0).cos();
+        (l1, l3)
+    };
+    let slack = 1e-9 * frob2;
+    let s_max = (l_max + slack)
+        .max(0.0)
+        .sqrt()
+        .min(frob2.sqrt() * (1.0 + 1e-12));
+    let s_min = (l_min - slack).max(0.0).sqrt();
+    (s_max, s_min)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Small deterministic generator for the tests.
+    struct Rng(u64);
+    impl Rng {
+        fn f(&mut self) -> f64 {
+            self.0 ^= self.0 >> 12;
+            self.0 ^= self.0 << 25;
+            self.0 ^= self.0 >> 27;
+            (self.0.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 11) as f64 / (1u64 << 53) as f64
+        }
+        fn v(&mut self, s: f64) -> DVec3 {
+            DVec3::new(self.f() - 0.5, self.f() - 0.5, self.f() - 0.5) * 2.0 * s
+        }
+    }
+
+    #[test]
+    fn triangle_distance_is_the_minimum_over_dense_samples() {
+        let mut rng = Rng(7);
+        for _ in 0..300 {
+            let t = [rng.v(1.0), rng.v(1.0), rng.v(1.0)];
+            let p = rng.v(2.0);
+            let d = dist_triangle(p, t[0], t[1], t[2]);
+            let mut best = f64::INFINITY;
+            let n = 60;
+            for i in 0..=n {
+                for j in 0..=(n - i) {
+                    let (u, v) = (i as f64 / n as f64, j as f64 / n as f64);
+                    let x = t[0] + u * (t[1] - t[0]) + v * (t[2] - t[0]);
+                    best = best.min((p - x).length());
+                }
+            }
+            // The samples are within 2/60 of an edge length of every point.
+            assert!(d <= best + 1e-12, "{d} > {best}");
+            assert!(best - d <= 0.08, "{d} vs {best}");
+        }
+    }
+
+    #[test]
+    fn singular_bounds_enclose_stretch_on_random_affine_maps() {
+        let mut rng = Rng(11);
+        for k in 0..500 {
+            let mut m = [rng.v(3.0), rng.v(3.0), rng.v(3.0)];
+            if k % 5 == 0 {
+                m[2] = m[0] * 0.5 + m[1] * 1e-7; // nearly singular
+            }
+            let (s_max, s_min) = singular_bounds(m);
+            let apply = |x: DVec3| m[0] * x.x + m[1] * x.y + m[2] * x.z;
+            let (mut hi, mut lo) = (0.0f64, f64::INFINITY);
+            for _ in 0..2000 {
+                let x = rng.v(1.0).normalize();
+                let s = apply(x).length();
+                hi = hi.max(s);
+                lo = lo.min(s);
+            }
+            assert!(s_max >= hi && s_min <= lo, "{s_min} {s_max} vs {lo} {hi}");
+            // And tight: random directions come near the extremes.
+            assert!(s_max <= hi * 1.05 + 1e-9, "{s_max} vs {hi}");
+        }
+    }
+
+    #[test]
+    fn crossings_of_a_closed_tetrahedron_give_its_winding_number() {
+        let t = [
+            DVec3::new(0.0, 0.0, 0.0),
+            DVec3::new(1.0, 0.0, 0.0),
+            DVec3::new(0.0, 1.0, 0.0),
+            DVec3::new(0.0, 0.0, 1.0),
+        ];
+        let faces = [[0, 2, 1], [0, 1, 3], [1, 2, 3], [2, 0, 3]];
+        let mut rng = Rng(3);
+        for _ in 0..200 {
+            let p = rng.v(1.0) + DVec3::splat(0.3);
+            let d = rng.v(1.0);
+            let mut sum = 0;
+            let mut sure = true;
+            let mut w = 0.0;
+            for f in faces {
+                let [a, b, c] = f.map(|i| t[i]);
+                w += winding_share(p, a, b, c);
+                match ray_crossing(p, d, a, b, c) {
+                    Crossing::Cross(s) => sum += s,
+                    Crossing::Unsure => sure = false,
+                    Crossing::Miss => {}
+                }
+            }
+            if sure {
+                assert!((w - sum as f64).abs() < 1e-9, "{w} vs {sum} at {p}");
+            }
+        }
+    }
+
+    #[test]
+    fn crossing_triangles_are_seen_and_separate_ones_are_not() {
+        let t = [DVec3::ZERO, DVec3::X, DVec3::Y];
+        let u = [
+            DVec3::new(0.2, 0.2, -1.0),
+            DVec3::new(0.2, 0.2, 1.0),
+            DVec3::new(2.0, 2.0, 0.0),
+        ];
+        assert!(triangles_cross(&t, &u));
+        let far = u.map(|v| v + DVec3::new(5.0, 0.0, 0.0));
+        assert!(!triangles_cross(&t, &far));
+    }
+}

@@ -1,0 +1,399 @@
+//! `sweptvol verify`: an independent certificate for any swept-volume mesh.
+//!
+//! Reads the generator and trajectory with the same parsers as `run` and the mesh with the same
+//! glTF reader, then checks, in f64 and with no code from the sweep, depth images, voxels or
+//! simplifier: mesh health (`health`), containment of every posed generator triangle
+//! (`containment`) and a bound on the one-sided Hausdorff distance from the mesh (`deviation`).
+//! docs/verify.md states what a pass proves.
+
+pub mod bvh;
+pub mod containment;
+pub mod deviation;
+pub mod geom;
+pub mod health;
+pub mod poses;
+pub mod winding;
+
+use std::path::PathBuf;
+use std::sync::atomic::AtomicU64;
+use std::time::Instant;
+
+use glam::DVec3;
+use serde::Serialize;
+
+use crate::io::{gltf_in, trajectory};
+use bvh::Bvh;
+use containment::{Containment, Target};
+use deviation::Deviation;
+use health::Health;
+use poses::{PoseTree, PosedPart};
+use winding::Winding;
+
+/// Default finest covering radius: this fraction of the mesh's bounding-box diagonal.
+pub const DEFAULT_SPACING_FRACTION: f64 = 1.0 / 2000.0;
+
+/// Progress of the long stages, for a progress bar.
+pub trait Progress: Sync {
+    fn stage(&self, _name: &str, _total: u64) {}
+    fn advance(&self, _done: u64, _total: u64) {}
+}
+
+/// Reports nothing.
+pub struct Silent;
+impl Progress for Silent {}
+
+#[derive(Clone, Debug)]
+pub struct VerifyOptions {
+    pub generator: PathBuf,
+    pub trajectory: PathBuf,
+    pub mesh: PathBuf,
+    /// Fail unless the deviation bound is at most this (world units).
+    pub bound: Option<f64>,
+    /// Finest covering radius of the samples, world units [default: mesh diagonal / 2000].
+    pub spacing: Option<f64>,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct Inputs {
+    pub generator: PathBuf,
+    pub trajectory: PathBuf,
+    pub mesh: PathBuf,
+    pub generator_parts: u64,
+    pub generator_triangles: u64,
+    pub trajectory_rows: u64,
+    /// Σ over parts of triangles × poses.
+    pub posed_triangles: u64,
+    pub mesh_triangles: u64,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct ContainmentReport {
+    /// Every posed triangle certified inside with clearance, and the mesh closed.
+    pub holds: bool,
+    /// Finest covering radius of the posed-triangle samples, world units.
+    pub spacing: f64,
+    #[serde(flatten)]
+    pub result: Containment,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct DeviationReport {
+    /// The `--bound` asked for, and whether the deviation bound is within it.
+    pub limit: Option<f64>,
+    pub within_limit: Option<bool>,
+    #[serde(flatten)]
+    pub result: Deviation,
+}
+
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct Timings {
+    pub read_inputs: f64,
+    pub setup: f64,
+    pub health: f64,
+    pub containment: f64,
+    pub deviation: f64,
+    pub total: f64,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct Report {
+    pub sweptvol_version: String,
+    pub passed: bool,
+    /// One line per failed check; empty when passed.
+    pub failures: Vec<String>,
+    pub inputs: Inputs,
+    pub health: Health,
+    pub containment: ContainmentReport,
+    pub deviation: DeviationReport,
+    /// Seconds per stage.
+    pub timings: Timings,
+    pub threads: usize,
+}
+
+/// Read the inputs (errors are `InputError`s naming file, line and fix) and check the mesh.
+pub fn verify(opts: &VerifyOptions, progress: &dyn Progress) -> anyhow::Result<Report> {
+    let t0 = Instant::now();
+    if let Some(s) = opts.spacing {
+        anyhow::ensure!(
+            s.is_finite() && s > 0.0,
+            "--spacing {s} must be a positive number of world units"
+        );
+    }
+    if let Some(b) = opts.bound {
+        anyhow::ensure!(
+            b.is_finite() && b >= 0.0,
+            "--bound {b} must be a non-negative number of world units"
+        );
+    }
+    let generator = gltf_in::read_generator(&opts.generator)?;
+    let traj = trajectory::read_trajectory(&opts.trajectory)?;
+    let mesh = gltf_in::read_world_triangles(&opts.mesh)?;
+    let assigned = poses::assign(&generator, &traj, &opts.trajectory)?;
+    let t1 = Instant::now();
+
+    let parts: Vec<PosedPart> = generator
+        .parts
+        .iter()
+        .zip(assigned)
+        .map(|(part, part_poses)| {
+            let bvh = Bvh::build(poses::local_triangles(part), 1);
+            let root = &bvh.nodes[0];
+            let tree = PoseTree::build(&part_poses, root.centre, root.radius);
+            PosedPart {
+                node_index: part.node_index,
+                name: part
+                    .node_name
+                    .clone()
+                    .unwrap_or_else(|| format!("nodes[{}]", part.node_index)),
+                bvh,
+                poses: part_poses,
+                tree,
+            }
+        })
+        .collect();
+    let (lo, hi) = mesh.iter().flatten().fold(
+        (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+        |(lo, hi), v| (lo.min(*v), hi.max(*v)),
+    );
+    let diagonal = (hi - lo).length();
+    let spacing = opts
+        .spacing
+        .unwrap_or(diagonal * DEFAULT_SPACING_FRACTION)
+        .max(f64::MIN_POSITIVE);
+    let scale = lo.abs().max(hi.abs()).max_element().max(diagonal);
+    let mesh_bvh = Bvh::build(mesh.clone(), 4);
+    let t2 = Instant::now();
+
+    progress.stage("mesh health", mesh.len() as u64);
+    let (health, boundary) = health::check(&mesh, &mesh_bvh);
+    let winding = Winding::new(&mesh_bvh, &boundary);
+    let t3 = Instant::now();
+
+    let posed: u64 = parts
+        .iter()
+        .map(|p| p.bvh.tris.len() as u64 * p.poses.len() as u64)
+        .sum();
+    progress.stage("containment (posed triangles)", posed);
+    let target = Target {
+        bvh: &mesh_bvh,
+        winding: &winding,
+        abs_margin: 1e-12 * scale,
+    };
+    let done = AtomicU64::new(0);
+    let containment = parts
+        .iter()
+        .map(|p| containment::check(p, &target, spacing, progress, &done, posed))
+        .fold(Containment::default(), Containment::merge);
+    let t4 = Instant::now();
+
+    progress.stage("deviation (mesh triangles)", mesh.len() as u64);
+    let deviation = deviation::check(&parts, &mesh, spacing, progress);
+    let t5 = Instant::now();
+
+    let mut failures = Vec::new();
+    if !health.closed {
+        failures.push(format!(
+            "mesh is not closed ({} open, {} misoriented, {} non-manifold edges): it bounds no solid, so containment cannot be proven",
+            health.open_edges, health.misoriented_edges, health.non_manifold_edges
+        ));
+    }
+    if containment.outside > 0 {
+        let w = containment.worst_outside.as_ref();
+        failures.push(format!(
+            "containment: {} of {} posed triangles have points outside the mesh{}",
+            containment.outside,
+            containment.posed_triangles,
+            w.map(|w| format!(
+                " (worst {} outside, {})",
+                fmt_len(w.distance),
+                describe_outside(w)
+            ))
+            .unwrap_or_default()
+        ));
+    }
+    if containment.too_close > 0 {
+        failures.push(format!(
+            "containment: {} of {} posed triangles come too close to the mesh surface to certify at covering radius {}",
+            containment.too_close,
+            containment.posed_triangles,
+            fmt_len(spacing)
+        ));
+    }
+    let within = opts.bound.map(|b| deviation.bound <= b);
+    if within == Some(false) {
+        failures.push(format!(
+            "deviation: the mesh strays up to {} from the swept volume, more than --bound {}{}",
+            fmt_len(deviation.bound),
+            fmt_len(opts.bound.unwrap_or_default()),
+            deviation
+                .place
+                .as_ref()
+                .map(|p| format!(
+                    " (at {}, mesh triangle {})",
+                    fmt_point(p.point),
+                    p.mesh_triangle
+                ))
+                .unwrap_or_default()
+        ));
+    }
+    let holds = health.closed && containment.holds();
+    Ok(Report {
+        sweptvol_version: env!("CARGO_PKG_VERSION").into(),
+        passed: failures.is_empty(),
+        failures,
+        inputs: Inputs {
+            generator: opts.generator.clone(),
+            trajectory: opts.trajectory.clone(),
+            mesh: opts.mesh.clone(),
+            generator_parts: parts.len() as u64,
+            generator_triangles: generator.triangle_count() as u64,
+            trajectory_rows: traj.poses.len() as u64,
+            posed_triangles: posed,
+            mesh_triangles: mesh.len() as u64,
+        },
+        health,
+        containment: ContainmentReport {
+            holds,
+            spacing,
+            result: containment,
+        },
+        deviation: DeviationReport {
+            limit: opts.bound,
+            within_limit: within,
+            result: deviation,
+        },
+        timings: Timings {
+            read_inputs: (t1 - t0).as_secs_f64(),
+            setup: (t2 - t1).as_secs_f64(),
+            health: (t3 - t2).as_secs_f64(),
+            containment: (t4 - t3).as_secs_f64(),
+            deviation: (t5 - t4).as_secs_f64(),
+            total: (t5 - t0).as_secs_f64(),
+        },
+        threads: rayon::current_num_threads(),
+    })
+}
+
+fn fmt_len(x: f64) -> String {
+    format!("{x:.6e}")
+}
+
+fn fmt_point(p: [f64; 3]) -> String {
+    format!("({:.6}, {:.6}, {:.6})", p[0], p[1], p[2])
+}
+
+fn describe_pose(row: Option<u32>, line: Option<u64>) -> String {
+    match (row, line) {
+        (Some(r), Some(l)) => format!("pose row {r} (CSV line {l})"),
+        _ => "its rest pose (no trajectory row moves it)".into(),
+    }
+}
+
+fn describe_outside(w: &containment::OutsidePoint) -> String {
+    format!(
+        "at {}: part {:?} (node {}) triangle {}, {}",
+        fmt_point(w.point),
+        w.node_name,
+        w.node,
+        w.triangle,
+        describe_pose(w.pose_row, w.csv_line)
+    )
+}
+
+impl Report {
+    /// The human-readable report: what was checked, at which density, the results, and a final
+    /// PASS or FAIL line with the reasons.
+    pub fn text(&self) -> String {
+        let i = &self.inputs;
+        let h = &self.health;
+        let c = &self.containment;
+        let d = &self.deviation;
+        let yes = |b: bool| if b { "yes" } else { "no" };
+        let mut s = String::new();
+        s += &format!(
+            "sweptvol verify {}\n  generator  {} ({} parts, {} triangles)\n  trajectory {} ({} rows; {} posed triangles)\n  mesh       {} ({} triangles)\n",
+            self.sweptvol_version,
+            i.generator.display(),
+            i.generator_parts,
+            i.generator_triangles,
+            i.trajectory.display(),
+            i.trajectory_rows,
+            i.posed_triangles,
+            i.mesh.display(),
+            i.mesh_triangles
+        );
+        s += &format!(
+            "mesh health: closed {}, watertight and manifold {}; {} open, {} misoriented, {} non-manifold edges; {} components; {} self-intersecting triangle pairs; {} degenerate triangles; signed volume {:.6e}\n",
+            yes(h.closed),
+            yes(h.watertight_manifold),
+            h.open_edges,
+            h.misoriented_edges,
+            h.non_manifold_edges,
+            h.components,
+            h.self_intersecting_pairs,
+            h.degenerate_triangles,
+            h.signed_volume
+        );
+        let r = &c.result;
+        s += &format!(
+            "containment (generalized winding number >= 1/2 with clearance >= covering radius; finest covering radius {}): {} of {} posed triangles certified inside, {} with points outside, {} too close to certify ({} ball tests, {} winding numbers, {} outside samples, {} uncertain samples)\n",
+            fmt_len(c.spacing),
+            r.certified,
+            r.posed_triangles,
+            r.outside,
+            r.too_close,
+            r.ball_tests,
+            r.winding_evaluations,
+            r.outside_samples,
+            r.too_close_samples
+        );
+        if let Some(w) = &r.worst_outside {
+            s += &format!(
+                "  worst point outside: {} outside the mesh, {}\n",
+                fmt_len(w.distance),
+                describe_outside(w)
+            );
+        }
+        let dr = &d.result;
+        s += &format!(
+            "deviation (one-sided Hausdorff distance from the mesh to the posed generator surfaces; sample covering radius {}, {} samples): at most {}, at least {}",
+            fmt_len(dr.spacing),
+            dr.samples,
+            fmt_len(dr.bound),
+            fmt_len(dr.lower)
+        );
+        if let Some(limit) = d.limit {
+            s += &format!(" (--bound {})", fmt_len(limit));
+        }
+        s += "\n";
+        if let Some(p) = &dr.place {
+            s += &format!(
+                "  reached near {} on mesh triangle {}: {} from part {:?} (node {}) triangle {}, {}\n",
+                fmt_point(p.point),
+                p.mesh_triangle,
+                fmt_len(p.distance),
+                p.node_name,
+                p.node,
+                p.triangle,
+                describe_pose(p.pose_row, p.csv_line)
+            );
+        }
+        s += &format!(
+            "time: {:.2} s ({} threads)\n",
+            self.timings.total, self.threads
+        );
+        if self.passed {
+            s += "PASS: every posed generator triangle is certified inside the closed mesh";
+            if let Some(b) = d.limit {
+                s += &format!(" and the deviation is within {}", fmt_len(b));
+            }
+            s += "\n";
+        } else {
+            s += "FAIL:\n";
+            for f in &self.failures {
+                s += &format!("  {f}\n");
+            }
+        }
+        s
+    }
+}

@@ -1,0 +1,474 @@
+//! `sweptvol verify` on the real binary: a known-good mesh from `sweptvol run` passes; broken
+//! copies of it fail with the right message (shrunk by a voxel, a triangle removed, a dent, a
+//! stray far-away shell); analytic boxes pin the clearance rule and the deviation figure; bad
+//! inputs give the same errors as `run`.
+
+use std::fs;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use glam::DVec3;
+use serde_json::{json, Value};
+
+fn sweptvol(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_sweptvol"))
+        .args(args)
+        .env("RUST_LOG", "warn")
+        .output()
+        .expect("run sweptvol")
+}
+
+/// A .glb with one node and one indexed triangle primitive.
+fn write_glb(path: &Path, positions: &[[f32; 3]], tris: &[[u32; 3]]) {
+    let mut bin: Vec<u8> = positions
+        .iter()
+        .flatten()
+        .flat_map(|x| x.to_le_bytes())
+        .collect();
+    let index_at = bin.len();
+    bin.extend(tris.iter().flatten().flat_map(|i| i.to_le_bytes()));
+    let doc = json!({
+        "asset": {"version": "2.0"},
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": [{"name": "part", "mesh": 0}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}],
+        "accessors": [
+            {"bufferView": 0, "componentType": 5126, "count": positions.len(), "type": "VEC3",
+             "min": [-1e9, -1e9, -1e9], "max": [1e9, 1e9, 1e9]},
+            {"bufferView": 1, "componentType": 5125, "count": 3 * tris.len(), "type": "SCALAR"},
+        ],
+        "bufferViews": [
+            {"buffer": 0, "byteOffset": 0, "byteLength": index_at},
+            {"buffer": 0, "byteOffset": index_at, "byteLength": bin.len() - index_at},
+        ],
+        "buffers": [{"byteLength": bin.len()}],
+    });
+    let mut js = serde_json::to_vec(&doc).unwrap();
+    while js.len() % 4 != 0 {
+        js.push(b' ');
+    }
+    let total = 12 + 8 + js.len() + 8 + bin.len();
+    let mut out = Vec::new();
+    out.extend_from_slice(b"glTF");
+    out.extend_from_slice(&2u32.to_le_bytes());
+    out.extend_from_slice(&(total as u32).to_le_bytes());
+    out.extend_from_slice(&(js.len() as u32).to_le_bytes());
+    out.extend_from_slice(b"JSON");
+    out.extend_from_slice(&js);
+    out.extend_from_slice(&(bin.len() as u32).to_le_bytes());
+    out.extend_from_slice(b"BIN\0");
+    out.extend_from_slice(&bin);
+    fs::write(path, out).unwrap();
+}
+
+/// An outward box [lo, hi] as 8 vertices and 12 triangles.
+fn cuboid(lo: [f64; 3], hi: [f64; 3]) -> (Vec<[f32; 3]>, Vec<[u32; 3]>) {
+    let v = (0..8)
+        .map(|i| {
+            [
+                if i & 1 == 0 { lo[0] } else { hi[0] } as f32,
+                if i & 2 == 0 { lo[1] } else { hi[1] } as f32,
+                if i & 4 == 0 { lo[2] } else { hi[2] } as f32,
+            ]
+        })
+        .collect();
+    let quads = [
+        [0, 2, 3, 1],
+        [4, 5, 7, 6],
+        [0, 1, 5, 4],
+        [2, 6, 7, 3],
+        [0, 4, 6, 2],
+        [1, 3, 7, 5],
+    ];
+    let t = quads
+        .iter()
+        .flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]])
+        .collect();
+    (v, t)
+}
+
+/// The mesh of a .glb as written by `run` (one node at the identity).
+fn read_mesh(path: &Path) -> (Vec<[f32; 3]>, Vec<[u32; 3]>) {
+    let g = sweptvol::io::gltf_in::read_generator(path).unwrap();
+    assert_eq!(g.parts.len(), 1);
+    let p = &g.parts[0];
+    (
+        p.positions.iter().map(|v| v.to_array()).collect(),
+        p.triangles.clone(),
+    )
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// Verify with `--json`; the exit code and the parsed report.
+fn verify_json(g: &Path, t: &Path, m: &Path, extra: &[&str]) -> (i32, Value) {
+    let mut args = vec![
+        "verify",
+        "--generator",
+        s(g),
+        "--trajectory",
+        s(t),
+        "--mesh",
+        s(m),
+        "--json",
+    ];
+    args.extend(extra);
+    let o = sweptvol(&args);
+    let err = String::from_utf8_lossy(&o.stderr);
+    let report: Value =
+        serde_json::from_slice(&o.stdout).unwrap_or_else(|e| panic!("no JSON ({e}): {err}"));
+    (o.status.code().unwrap(), report)
+}
+
+fn failures(r: &Value) -> String {
+    r["failures"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| f.as_str().unwrap().to_string())
+        .collect::<Vec<_>>()
+        .join("\n")
+}
+
+/// A small scene swept by `run`: a box pushed along x and turned a little, the good mesh, and
+/// the run's report.
+struct Scene {
+    _dir: tempfile::TempDir,
+    dir: PathBuf,
+    generator: PathBuf,
+    trajectory: PathBuf,
+    mesh: PathBuf,
+    report: Value,
+}
+
+fn scene() -> Scene {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().to_path_buf();
+    let generator = path.join("part.glb");
+    let (v, t) = cuboid([0.0, 0.0, 0.0], [0.6, 0.3, 0.2]);
+    write_glb(&generator, &v, &t);
+    let trajectory = path.join("part.csv");
+    fs::write(
+        &trajectory,
+        "frame,tx,ty,tz,qw,qx,qy,qz\n0,0,0,0,1,0,0,0\n1,0.15,0.02,0,0.9990482,0,0,0.0436194\n2,0.3,0.05,0.01,0.9961947,0,0.0871557,0\n",
+    )
+    .unwrap();
+    let out = path.join("out");
+    let o = sweptvol(&[
+        "run",
+        "--generator",
+        s(&generator),
+        "--trajectory",
+        s(&trajectory),
+        "--out",
+        s(&out),
+        "--resolution",
+        "40",
+        "--backend",
+        "cpu",
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let report = serde_json::from_slice(&fs::read(out.join("part.report.json")).unwrap()).unwrap();
+    Scene {
+        _dir: dir,
+        dir: path,
+        generator,
+        trajectory,
+        mesh: out.join("part.swept.glb"),
+        report,
+    }
+}
+
+#[test]
+fn run_output_passes_and_broken_copies_fail_with_the_right_message() {
+    let sc = scene();
+    let h = sc.report["parameters"]["voxel_size"].as_f64().unwrap();
+    let hausdorff = sc.report["mesh"]["hausdorff_bound"].as_f64().unwrap();
+    let spacing = h / 8.0;
+    let sp = format!("{spacing}");
+    let bound = format!("{}", hausdorff + spacing);
+    let extra = ["--spacing", sp.as_str(), "--bound", bound.as_str()];
+
+    // Known good: everything certified, closed, and within the run's own bound (the box is
+    // convex, so its concavities are all visible).
+    let (code, r) = verify_json(&sc.generator, &sc.trajectory, &sc.mesh, &extra);
+    assert_eq!(code, 0, "{}", failures(&r));
+    assert_eq!(r["passed"], true);
+    let c = &r["containment"];
+    assert_eq!(c["holds"], true);
+    assert_eq!(c["posed_triangles"], 36);
+    assert_eq!(c["certified"], 36);
+    assert!(r["health"]["closed"].as_bool().unwrap());
+    assert_eq!(r["health"]["components"], 1);
+    assert_eq!(r["health"]["self_intersecting_pairs"], 0);
+    let dev = r["deviation"]["bound"].as_f64().unwrap();
+    let lower = r["deviation"]["lower"].as_f64().unwrap();
+    assert!(
+        lower <= dev && dev <= hausdorff + spacing,
+        "{lower} {dev} {hausdorff}"
+    );
+    // The run keeps a clearance of about 0.7 h; the mesh is at least that far out.
+    assert!(lower >= 0.5 * h, "{lower} vs h = {h}");
+
+    // The text report says the same, with a PASS line.
+    let o = sweptvol(&[
+        "verify",
+        "--generator",
+        s(&sc.generator),
+        "--trajectory",
+        s(&sc.trajectory),
+        "--mesh",
+        s(&sc.mesh),
+        "--spacing",
+        &sp,
+        "--quiet",
+    ]);
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert_eq!(o.status.code(), Some(0), "{text}");
+    assert!(
+        text.contains("36 of 36 posed triangles certified inside"),
+        "{text}"
+    );
+    assert!(
+        text.trim_end().lines().last().unwrap().starts_with("PASS"),
+        "{text}"
+    );
+
+    let (pos, tris) = read_mesh(&sc.mesh);
+    let p64: Vec<DVec3> = pos.iter().map(|p| DVec3::from(p.map(f64::from))).collect();
+    let broken = |name: &str, pos: &[[f32; 3]], tris: &[[u32; 3]], extra: &[&str]| {
+        let m = sc.dir.join(name);
+        write_glb(&m, pos, tris);
+        verify_json(&sc.generator, &sc.trajectory, &m, extra)
+    };
+
+    // Shrunk to one voxel inside the swept volume's bounding box on every side (per axis,
+    // affinely): each extreme point of the swept volume is now at least a voxel outside.
+    let g = sweptvol::io::gltf_in::read_generator(&sc.generator).unwrap();
+    let traj = sweptvol::io::trajectory::read_trajectory(&sc.trajectory).unwrap();
+    let (mut slo, mut shi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+    for pose in &traj.poses {
+        for v in &g.parts[0].positions {
+            let w = pose.matrix.transform_point3(v.as_dvec3());
+            slo = slo.min(w);
+            shi = shi.max(w);
+        }
+    }
+    let (mlo, mhi) = p64.iter().fold(
+        (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+        |(lo, hi), p| (lo.min(*p), hi.max(*p)),
+    );
+    let shrunk: Vec<[f32; 3]> = p64
+        .iter()
+        .map(|p| {
+            let q = slo
+                + DVec3::splat(h)
+                + (*p - mlo) * (shi - slo - DVec3::splat(2.0 * h)) / (mhi - mlo);
+            q.as_vec3().to_array()
+        })
+        .collect();
+    let (code, r) = broken("shrunk.glb", &shrunk, &tris, &extra);
+    assert_eq!(code, 3);
+    let f = failures(&r);
+    assert!(f.contains("points outside the mesh"), "{f}");
+    assert!(r["containment"]["outside"].as_u64().unwrap() > 0);
+    let worst = &r["containment"]["worst_outside"];
+    let depth = worst["distance"].as_f64().unwrap();
+    assert!(depth >= 0.9 * h && depth < 3.0 * h, "{depth} vs h = {h}");
+    assert!(worst["csv_line"].as_u64().unwrap() >= 2);
+    assert_eq!(r["health"]["closed"], true);
+
+    // One triangle removed: not closed, reported as such; the winding number still certifies
+    // the posed triangles far from the hole.
+    let mut holed = tris.clone();
+    holed.remove(tris.len() / 2);
+    let (code, r) = broken("holed.glb", &pos, &holed, &extra);
+    assert_eq!(code, 3);
+    assert!(
+        failures(&r).contains("mesh is not closed (3 open"),
+        "{}",
+        failures(&r)
+    );
+    assert_eq!(r["health"]["open_edges"], 3);
+    assert_eq!(r["containment"]["holds"], false);
+    assert!(r["containment"]["certified"].as_u64().unwrap() > 0);
+
+    // A dent: one vertex pushed to the middle of the generator's rest pose.
+    let mut dented = pos.clone();
+    let k = (0..pos.len())
+        .min_by(|&a, &b| p64[a].x.total_cmp(&p64[b].x))
+        .unwrap();
+    dented[k] = [0.3, 0.15, 0.1];
+    let (code, r) = broken("dented.glb", &dented, &tris, &extra);
+    assert_eq!(code, 3);
+    assert!(
+        failures(&r).contains("points outside the mesh"),
+        "{}",
+        failures(&r)
+    );
+
+    // A stray closed shell far away: still closed and containing, but the deviation fails.
+    let (sv, st) = cuboid([3.0, 3.0, 3.0], [3.01, 3.01, 3.01]);
+    let mut stray_pos = pos.clone();
+    let base = pos.len() as u32;
+    stray_pos.extend(sv);
+    let mut stray_tris = tris.clone();
+    stray_tris.extend(st.iter().map(|t| t.map(|i| i + base)));
+    let (code, r) = broken("stray.glb", &stray_pos, &stray_tris, &extra);
+    assert_eq!(code, 3);
+    let f = failures(&r);
+    assert!(f.contains("deviation") && f.contains("--bound"), "{f}");
+    assert!(!f.contains("containment"), "{f}");
+    assert_eq!(r["containment"]["holds"], true);
+    assert_eq!(r["health"]["components"], 2);
+    assert_eq!(r["deviation"]["within_limit"], false);
+    let place = &r["deviation"]["place"];
+    assert!(place["point"][0].as_f64().unwrap() > 2.9);
+    assert!(r["deviation"]["bound"].as_f64().unwrap() > 3.0);
+}
+
+/// A box [0, 0.5]×[0, 0.4]×[0, 0.3] pushed along x to 0.5 and 1: its swept volume is the box
+/// [0, 1.5]×[0, 0.4]×[0, 0.3].
+fn analytic(dir: &Path) -> (PathBuf, PathBuf) {
+    let g = dir.join("box.glb");
+    let (v, t) = cuboid([0.0, 0.0, 0.0], [0.5, 0.4, 0.3]);
+    write_glb(&g, &v, &t);
+    let csv = dir.join("box.csv");
+    fs::write(
+        &csv,
+        "tx,ty,tz,qw,qx,qy,qz\n0,0,0,1,0,0,0\n0.5,0,0,1,0,0,0\n1,0,0,1,0,0,0\n",
+    )
+    .unwrap();
+    (g, csv)
+}
+
+#[test]
+fn analytic_box_hull_clearance_and_deviation() {
+    let dir = tempfile::tempdir().unwrap();
+    let (g, csv) = analytic(dir.path());
+    let spacing = 0.004;
+    let sp = format!("{spacing}");
+
+    // The hull enlarged by d: certified, and the deviation is the corner offset d√3 (up to
+    // twice the sample spacing: covering radius plus search tolerance).
+    let d = 0.02;
+    let m = dir.path().join("hull+d.glb");
+    let (v, t) = cuboid([-d, -d, -d], [1.5 + d, 0.4 + d, 0.3 + d]);
+    write_glb(&m, &v, &t);
+    let (code, r) = verify_json(&g, &csv, &m, &["--spacing", &sp]);
+    assert_eq!(code, 0, "{}", failures(&r));
+    assert_eq!(r["containment"]["certified"], 36);
+    let dev = r["deviation"]["bound"].as_f64().unwrap();
+    let lower = r["deviation"]["lower"].as_f64().unwrap();
+    let exact = d * 3f64.sqrt();
+    assert!(
+        dev >= exact - 1e-6 && dev <= exact + 2.0 * spacing + 1e-6,
+        "{dev} vs {exact}"
+    );
+    assert!(
+        lower <= exact + 1e-6 && lower >= exact - 2.0 * spacing,
+        "{lower} vs {exact}"
+    );
+    let b = format!("{}", exact * 0.9);
+    let (code, r) = verify_json(&g, &csv, &m, &["--spacing", &sp, "--bound", &b]);
+    assert_eq!(code, 3);
+    assert!(failures(&r).contains("deviation"), "{}", failures(&r));
+
+    // The exact hull: the generator's faces lie on it, so no clearance: not certified, and
+    // nothing is outside either.
+    let m = dir.path().join("hull.glb");
+    let (v, t) = cuboid([0.0, 0.0, 0.0], [1.5, 0.4, 0.3]);
+    write_glb(&m, &v, &t);
+    let (code, r) = verify_json(&g, &csv, &m, &["--spacing", "0.01"]);
+    assert_eq!(code, 3);
+    let f = failures(&r);
+    assert!(
+        f.contains("too close to the mesh surface to certify"),
+        "{f}"
+    );
+    assert_eq!(r["containment"]["outside"], 0);
+    assert!(r["deviation"]["bound"].as_f64().unwrap() <= 0.02 + 1e-9);
+
+    // The hull shortened by 0.01 at the far end: the last pose pokes out by 0.01.
+    let m = dir.path().join("short.glb");
+    let (v, t) = cuboid([-d, -d, -d], [1.49, 0.4 + d, 0.3 + d]);
+    write_glb(&m, &v, &t);
+    let (code, r) = verify_json(&g, &csv, &m, &["--spacing", &sp]);
+    assert_eq!(code, 3);
+    let w = &r["containment"]["worst_outside"];
+    assert_eq!(w["csv_line"], 4, "{w}");
+    let depth = w["distance"].as_f64().unwrap();
+    assert!(depth > 0.0 && depth <= 0.01 + 1e-9, "{depth}");
+}
+
+#[test]
+fn bad_inputs_give_the_same_errors_as_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let (g, _) = analytic(dir.path());
+    let m = dir.path().join("hull.glb");
+    let (v, t) = cuboid([-0.1, -0.1, -0.1], [1.6, 0.5, 0.4]);
+    write_glb(&m, &v, &t);
+    let bad = dir.path().join("bad.csv");
+    fs::write(
+        &bad,
+        "tx,ty,tz,qw,qx,qy,qz\n0,0,0,1,0,0,0\n1,nan,0,1,0,0,0\n",
+    )
+    .unwrap();
+    let garbage = dir.path().join("garbage.glb");
+    fs::write(&garbage, "not a glTF file").unwrap();
+    let ok_csv = dir.path().join("ok.csv");
+    fs::write(&ok_csv, "tx,ty,tz,qw,qx,qy,qz\n0,0,0,1,0,0,0\n").unwrap();
+    let node_csv = dir.path().join("node.csv");
+    fs::write(
+        &node_csv,
+        "node,tx,ty,tz,qw,qx,qy,qz\nwheel,0,0,0,1,0,0,0\n",
+    )
+    .unwrap();
+    let cases: [(&Path, &Path, &Path, &[&str]); 4] = [
+        (&g, &bad, &m, &["bad.csv:3", "ty", "fix:"]),
+        (&g, &node_csv, &m, &["node.csv:2", "node", "wheel"]),
+        (&garbage, &ok_csv, &m, &["garbage.glb", "fix:"]),
+        (&g, &ok_csv, &garbage, &["garbage.glb", "fix:"]),
+    ];
+    for (g, t, m, needles) in cases {
+        let o = sweptvol(&[
+            "verify",
+            "--generator",
+            s(g),
+            "--trajectory",
+            s(t),
+            "--mesh",
+            s(m),
+        ]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{needles:?}: {err}");
+        for n in needles {
+            assert!(err.contains(n), "stderr lacks {n:?}: {err}");
+        }
+    }
+    // The same CSV error as `run` gives, word for word.
+    let o = sweptvol(&[
+        "run",
+        "--generator",
+        s(&g),
+        "--trajectory",
+        s(&bad),
+        "--out",
+        s(&dir.path().join("out")),
+    ]);
+    let run_err = String::from_utf8_lossy(&o.stderr).to_string();
+    let o = sweptvol(&[
+        "verify",
+        "--generator",
+        s(&g),
+        "--trajectory",
+        s(&bad),
+        "--mesh",
+        s(&m),
+    ]);
+    assert_eq!(String::from_utf8_lossy(&o.stderr), run_err);
+}
