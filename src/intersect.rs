@@ -259,9 +259,12 @@ fn corners_overlap(p: DVec3, ab: [DVec3; 2], cd: [DVec3; 2], n: DVec3) -> bool {
         || within(cd, mid(ab))
 }
 
+/// Cell size at which an insert prunes the cell (a cell of the start mesh holds about 8-16).
+const PRUNE_AT: usize = 32;
+
 /// Triangle ids by the cells their bounding boxes meet, each id at most once per cell. A
 /// triangle that moves is inserted again under its new cells, so every live triangle is found in
-/// each cell its current box meets; queries prune the cells they visit.
+/// each cell its current box meets; inserts prune the cells they touch.
 pub struct TriangleHash {
     cell: f64,
     cells: HashMap<u64, Vec<u32>, BuildHasherDefault<KeyHasher>>,
@@ -291,12 +294,25 @@ impl TriangleHash {
         (c[0] + 2) as u64 | ((c[1] + 2) as u64) << 21 | ((c[2] + 2) as u64) << 42
     }
 
-    pub fn insert(&mut self, id: u32, t: &[DVec3; 3]) {
+    /// Add `id` (positions `t`) under every cell its box meets. A cell holding [`PRUNE_AT`] ids
+    /// or more first drops those that `current` says are gone or have moved away from it
+    /// (`current`: a triangle's positions now, None when it is gone).
+    pub fn insert(&mut self, id: u32, t: &[DVec3; 3], current: impl Fn(u32) -> Option<[DVec3; 3]>) {
         let (lo, hi) = self.cell_range(t);
+        let cell = self.cell;
         for k in lo[2]..=hi[2] {
             for j in lo[1]..=hi[1] {
                 for i in lo[0]..=hi[0] {
                     let ids = self.cells.entry(Self::key([i, j, k])).or_default();
+                    let (clo, chi) = (
+                        DVec3::new(i as f64, j as f64, k as f64) * cell,
+                        DVec3::new((i + 1) as f64, (j + 1) as f64, (k + 1) as f64) * cell,
+                    );
+                    if ids.len() >= PRUNE_AT {
+                        ids.retain(|&u| {
+                            current(u).is_some_and(|p| boxes_meet(&p, &[clo, chi, chi]))
+                        });
+                    }
                     if !ids.contains(&id) {
                         ids.push(id);
                     }
@@ -305,36 +321,17 @@ impl TriangleHash {
         }
     }
 
-    /// Ids whose cells meet the box of `t`'s points (a superset of the triangles near them),
-    /// sorted, unique.
-    /// `current` gives a triangle's positions now, or None when it is gone: each visited cell
-    /// drops the ids that are gone or have moved away from it.
-    pub fn near(
-        &mut self,
-        t: &[DVec3],
-        current: impl Fn(u32) -> Option<[DVec3; 3]>,
-        out: &mut Vec<u32>,
-    ) {
+    /// Ids whose cells meet the box of `t`'s points (a superset of the live triangles near
+    /// them; dead ids may remain), sorted, unique.
+    pub fn near(&self, t: &[DVec3], out: &mut Vec<u32>) {
         out.clear();
         let (lo, hi) = self.cell_range(t);
-        let cell = self.cell;
         for k in lo[2]..=hi[2] {
             for j in lo[1]..=hi[1] {
                 for i in lo[0]..=hi[0] {
-                    let Some(ids) = self.cells.get_mut(&Self::key([i, j, k])) else {
-                        continue;
-                    };
-                    let (clo, chi) = (
-                        DVec3::new(i as f64, j as f64, k as f64) * cell,
-                        DVec3::new((i + 1) as f64, (j + 1) as f64, (k + 1) as f64) * cell,
-                    );
-                    ids.retain(|&id| {
-                        current(id).is_some_and(|p| {
-                            let (plo, phi) = (p[0].min(p[1]).min(p[2]), p[0].max(p[1]).max(p[2]));
-                            (plo - chi).max_element() <= TOUCH && (clo - phi).max_element() <= TOUCH
-                        })
-                    });
-                    out.extend_from_slice(ids);
+                    if let Some(ids) = self.cells.get(&Self::key([i, j, k])) {
+                        out.extend_from_slice(ids);
+                    }
                 }
             }
         }

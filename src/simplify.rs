@@ -65,6 +65,7 @@ impl SimplifyStats {
             Reject::Flip => &mut self.rejected_flip,
             Reject::Band => &mut self.rejected_band,
             Reject::Sweep => &mut self.rejected_sweep,
+            Reject::Intersection => &mut self.rejected_intersection,
         } += 1;
     }
 }
@@ -168,10 +169,10 @@ struct Plan {
     v: DVec3,
     /// The two triangles on the edge (they disappear).
     shared: Vec<u32>,
-    /// Every triangle around a or b before the collapse, sorted.
-    around: Vec<u32>,
     /// The surviving triangles around the edge with their new positions.
     changed: Vec<(u32, [DVec3; 3])>,
+    /// The same with their vertex ids after the collapse.
+    new: Vec<([u32; 3], [DVec3; 3])>,
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -180,6 +181,7 @@ enum Reject {
     Flip,
     Band,
     Sweep,
+    Intersection,
 }
 
 struct State {
@@ -216,7 +218,9 @@ pub fn simplify(mesh: &Mesh, cls: &Classifier, opts: SimplifyOptions) -> (Mesh, 
         stats: SimplifyStats::default(),
     };
     for (t, tri) in mesh.triangles.iter().enumerate() {
-        s.hash.insert(t as u32, &tri.map(|i| s.pos[i as usize]));
+        let start = |u: u32| Some(mesh.triangles[u as usize].map(|x| mesh.positions[x as usize]));
+        s.hash
+            .insert(t as u32, &tri.map(|i| s.pos[i as usize]), start);
         let q = Quadric::plane(tri.map(|i| s.pos[i as usize]));
         for &v in tri {
             s.star[v as usize].push(t as u32);
@@ -274,6 +278,7 @@ pub fn simplify(mesh: &Mesh, cls: &Classifier, opts: SimplifyOptions) -> (Mesh, 
                 s.check(&mut prox, c.a as usize, c.b as usize, target)
             })
             .collect();
+        let mut batch_moved = Vec::new();
         for outcome in checked {
             if s.live_tris <= opts.target_triangles {
                 break 'batches;
@@ -286,7 +291,7 @@ pub fn simplify(mesh: &Mesh, cls: &Classifier, opts: SimplifyOptions) -> (Mesh, 
                 }
             };
             let a = plan.a;
-            if s.commit(plan) {
+            if s.commit(plan, &mut batch_moved) {
                 // Edges whose triangles changed: around a, and around its neighbours (their
                 // stars now hold moved triangles, so earlier rejections may no longer hold).
                 let ring = s.neighbours(a);
@@ -384,8 +389,9 @@ impl State {
         }
     }
 
-    /// The checks that read only the mesh around the edge (topology, flips, band, swept region),
-    /// run in parallel on independent candidates with a per-thread `prox`.
+    /// The checks (topology, flips, band, swept region, self-intersection), reading the mesh as
+    /// it was before the batch; run in parallel on independent candidates with a per-thread
+    /// `prox`.
     fn check(&self, prox: &mut Proximity, a: usize, b: usize, v: DVec3) -> Result<Plan, Reject> {
         // Topology: a two-face edge between manifold vertices, and the link condition.
         let shared: Vec<u32> = self.star[a]
@@ -475,46 +481,23 @@ impl State {
                 return Err(Reject::Sweep);
             }
         }
-        Ok(Plan {
-            a,
-            b,
-            v,
-            shared,
-            around,
-            changed,
-        })
-    }
-
-    /// Apply a checked plan unless its new triangles would meet the mesh as it is now (this
-    /// test runs here, in order, so collapses of one batch are tested against each other).
-    fn commit(&mut self, plan: Plan) -> bool {
-        let Plan {
-            a,
-            b,
-            v,
-            shared,
-            around,
-            changed,
-        } = plan;
-        // No self-intersection: each new triangle against the surviving triangles near it and
+        // No self-intersection: each new triangle against the other live triangles near it and
         // against the other new ones (ids as after the collapse: b becomes a).
         let renamed =
             |t: u32| self.tris[t as usize].map(|x| if x as usize == b { a as u32 } else { x });
         let new: Vec<([u32; 3], [DVec3; 3])> =
             changed.iter().map(|(t, q)| (renamed(*t), *q)).collect();
-        let mut near = Vec::new();
         let fan: Vec<DVec3> = new.iter().flat_map(|(_, q)| *q).collect();
-        let (tris, pos, alive) = (&self.tris, &self.pos, &self.tri_alive);
-        let current = |u: u32| alive[u as usize].then(|| tris[u as usize].map(|x| pos[x as usize]));
-        self.hash.near(&fan, current, &mut near);
         let (lo, hi) = fan
             .iter()
             .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), p| {
                 (lo.min(*p), hi.max(*p))
             });
+        let mut near = Vec::new();
+        self.hash.near(&fan, &mut near);
         let others: Vec<([u32; 3], [DVec3; 3])> = near
             .iter()
-            .filter(|u| around.binary_search(u).is_err())
+            .filter(|u| self.tri_alive[**u as usize] && around.binary_search(u).is_err())
             .map(|&u| {
                 let ui = self.tris[u as usize];
                 (ui, ui.map(|x| self.pos[x as usize]))
@@ -524,10 +507,40 @@ impl State {
         for (k, (ti, q)) in new.iter().enumerate() {
             let mut pairs = others.iter().chain(&new[k + 1..]).copied();
             if pairs.any(|(ui, up)| boxes_meet(q, &up) && conflict(*ti, *q, ui, up)) {
+                return Err(Reject::Intersection);
+            }
+        }
+        Ok(Plan {
+            a,
+            b,
+            v,
+            shared,
+            changed,
+            new,
+        })
+    }
+
+    /// Apply a checked plan unless its new triangles meet a triangle moved earlier in this batch
+    /// (`batch_moved`, ids and positions as now; the plan's own new ones are added to it).
+    fn commit(&mut self, plan: Plan, batch_moved: &mut Vec<([u32; 3], [DVec3; 3])>) -> bool {
+        let Plan {
+            a,
+            b,
+            v,
+            shared,
+            changed,
+            new,
+        } = plan;
+        // The same test against the triangles that earlier collapses of this batch moved, which
+        // `check` saw at their old places.
+        for (ti, q) in &new {
+            let mut pairs = batch_moved.iter().copied();
+            if pairs.any(|(ui, up)| boxes_meet(q, &up) && conflict(*ti, *q, ui, up)) {
                 self.stats.rejected_intersection += 1;
                 return false;
             }
         }
+        batch_moved.extend(new.iter().copied());
 
         // Apply: b merges into a at v.
         for &t in &shared {
@@ -549,8 +562,10 @@ impl State {
         self.star[b].clear();
         self.vert_alive[b] = false;
         self.pos[a] = v;
+        let (tris, pos, alive) = (&self.tris, &self.pos, &self.tri_alive);
+        let current = |u: u32| alive[u as usize].then(|| tris[u as usize].map(|x| pos[x as usize]));
         for (t, q) in &changed {
-            self.hash.insert(*t, q);
+            self.hash.insert(*t, q, current);
         }
         self.quadric[a] = self.quadric[a].add(&self.quadric[b]);
         self.version[a] += 1;
