@@ -14,7 +14,7 @@ use crate::grid::{Accuracy, Grid, Overrides};
 use crate::io::exr_depth::{self, ExtraMeta, Side};
 use crate::io::{atomic, gltf_in, gltf_out, trajectory};
 use crate::job::{self, PartRange, SweepInput};
-use crate::simplify::{simplify, SimplifyOptions, SimplifyStats};
+use crate::simplify::{simplify_until, SimplifyOptions, SimplifyStats};
 use crate::sweep::{cpu, gpu::Gpu, Cancelled, Observer};
 use crate::voxel::Classifier;
 
@@ -357,7 +357,8 @@ pub fn execute(
             input.params.delta
         );
     }
-    let (mesh, simplify_stats) = simplify(&start, &classifier, band);
+    let (mesh, simplify_stats) =
+        simplify_until(&start, &classifier, band, &|| observer.cancelled()).ok_or(Cancelled)?;
     let (_, output_rounding) = gltf_out::world_positions(&mesh, &input.grid);
     // The mesh keeps a clearance of δ - √3h/2 - ε (about 0.71h at the defaults) from the swept
     // volume; f32 output must not spend a noticeable part of it.

@@ -202,6 +202,17 @@ struct State {
 
 /// Simplify `mesh` (the voxel boundary of `cls`) within the bands of `opts`.
 pub fn simplify(mesh: &Mesh, cls: &Classifier, opts: SimplifyOptions) -> (Mesh, SimplifyStats) {
+    simplify_until(mesh, cls, opts, &|| false).expect("never stopped")
+}
+
+/// [`simplify`], asking `stop` between batches of candidates (milliseconds apart): None when it
+/// said yes.
+pub fn simplify_until(
+    mesh: &Mesh,
+    cls: &Classifier,
+    opts: SimplifyOptions,
+    stop: &(dyn Fn() -> bool + Sync),
+) -> Option<(Mesh, SimplifyStats)> {
     assert!(opts.min_radius > 0.0 && opts.eps < band::REACH && opts.eps_sweep < band::REACH);
     let n = mesh.positions.len();
     let mut s = State {
@@ -247,6 +258,9 @@ pub fn simplify(mesh: &Mesh, cls: &Classifier, opts: SimplifyOptions) -> (Mesh, 
     let mut batch: Vec<Candidate> = Vec::with_capacity(BATCH);
     let mut deferred: Vec<Candidate> = Vec::new();
     'batches: while s.live_tris > opts.target_triangles {
+        if stop() {
+            return None;
+        }
         batch_no += 1;
         batch.clear();
         while batch.len() < BATCH {
@@ -311,7 +325,7 @@ pub fn simplify(mesh: &Mesh, cls: &Classifier, opts: SimplifyOptions) -> (Mesh, 
         }
         heap.extend(deferred.drain(..));
     }
-    (s.compact(), s.stats)
+    Some((s.compact(), s.stats))
 }
 
 impl State {
@@ -695,6 +709,14 @@ mod tests {
             keys.dedup();
             assert_eq!(keys.len(), n, "box to {hi:?}: duplicate triangles");
         }
+    }
+
+    #[test]
+    fn a_stop_request_ends_it_without_a_mesh() {
+        let cls = boxed([8, 8, 8], [2.0, 2.0, 2.0], [6.0, 6.0, 6.0]);
+        let start = extract(&cls);
+        assert!(simplify_until(&start, &cls, defaults(), &|| true).is_none());
+        assert!(simplify_until(&start, &cls, defaults(), &|| false).is_some());
     }
 
     #[test]

@@ -177,6 +177,21 @@ pub fn write_depth_exr(
     side: Side,
     extra: &ExtraMeta,
 ) -> anyhow::Result<()> {
+    let open =
+        || std::fs::File::create(path).with_context(|| format!("cannot write {}", path.display()));
+    write_depth_exr_to(open, path, images, axis, side, extra)
+}
+
+/// [`write_depth_exr`] into the file `open` gives once the images are checked (`path` names it
+/// in errors).
+fn write_depth_exr_to(
+    open: impl FnOnce() -> anyhow::Result<std::fs::File>,
+    path: &Path,
+    images: &DepthImages,
+    axis: usize,
+    side: Side,
+    extra: &ExtraMeta,
+) -> anyhow::Result<()> {
     ensure!(axis < 3, "axis {axis} is not 0, 1 or 2");
     ensure!(
         extra.delta.is_finite() && extra.rounding.is_finite(),
@@ -222,9 +237,10 @@ pub fn write_depth_exr(
     let size = (image.width as usize, image.height as usize);
     let layer = Layer::new(size, attributes, Encoding::SMALL_LOSSLESS, channels);
 
+    let file = open()?;
     Image::from_layer(layer)
         .write()
-        .to_file(path)
+        .to_buffered(std::io::BufWriter::new(file))
         .with_context(|| format!("cannot write {}", path.display()))
 }
 
@@ -241,7 +257,7 @@ pub fn stage_all(
     for axis in 0..3 {
         for side in Side::BOTH {
             let path = dir.join(depth_file_name(stem, axis, side));
-            write_depth_exr(&staged.path_for(&path), images, axis, side, extra)?;
+            write_depth_exr_to(|| staged.create(&path), &path, images, axis, side, extra)?;
             paths.push(path);
         }
     }

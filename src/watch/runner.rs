@@ -296,9 +296,9 @@ fn check_size(
     Ok(())
 }
 
-/// Temporary files left by a daemon killed mid-write (`.<output>.tmp-<pid>`): removed before
-/// the job writes its own, so nothing stale lingers and no planted link is written through.
-/// The status file's temporaries of this process are in use and kept.
+/// Temporary files left by a daemon killed mid-write (`.<output>.tmp-<pid>-<n>`): removed before
+/// the job writes its own, so nothing stale lingers. The status file's temporaries of this
+/// process may be in use and are kept.
 fn remove_stale_temporaries(opts: &pipeline::RunOptions, status: &Path) -> anyhow::Result<()> {
     let mut outputs = pipeline::output_paths(opts)?;
     outputs.push(status.to_path_buf());
@@ -307,13 +307,15 @@ fn remove_stale_temporaries(opts: &pipeline::RunOptions, status: &Path) -> anyho
         .filter_map(|p| p.file_name())
         .map(|n| format!(".{}.tmp-", n.to_string_lossy()))
         .collect();
-    let ours = format!(".tmp-{}", std::process::id());
+    // This process's temporaries (`.<name>.tmp-<pid>-<n>`) may be in use by a status write;
+    // a planted file under such a name is harmless, since temporaries are created exclusively.
+    let ours = format!(".tmp-{}-", std::process::id());
     let Ok(read) = fs::read_dir(&opts.out_dir) else {
         return Ok(());
     };
     for dirent in read.flatten() {
         let name = dirent.file_name().to_string_lossy().into_owned();
-        if prefixes.iter().any(|p| name.starts_with(p)) && !name.ends_with(&ours) {
+        if prefixes.iter().any(|p| name.starts_with(p)) && !name.contains(&ours) {
             let _ = fs::remove_file(dirent.path());
         }
     }
