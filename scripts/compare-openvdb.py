@@ -156,6 +156,12 @@ def main():
     points, tris, quads = grid.convertToPolygons(isovalue=iso, adaptivity=0.0)
     tris = np.concatenate([tris.reshape(-1, 3),
                            quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]]) if len(quads) else tris
+    # Orient outward (glTF: counter-clockwise seen from outside): flip when the signed volume
+    # comes out negative.
+    tris = np.asarray(tris, dtype=np.int64)
+    v = np.asarray(points, dtype=np.float64)[tris]
+    if np.einsum("ij,ij->i", v[:, 0], np.cross(v[:, 1], v[:, 2])).sum() < 0:
+        tris = tris[:, ::-1]
     t3 = time.perf_counter()
     write_glb(a.out, points, tris)
     print(json.dumps({
