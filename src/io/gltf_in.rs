@@ -272,6 +272,14 @@ fn read_uri(path: &Path, uri: &str) -> Result<Vec<u8>, InputError> {
     if !real_file.starts_with(&real_folder) {
         return Err(outside(&format!("it resolves to {}", real_file.display())));
     }
+    // A FIFO or device would block the reader or never end: only plain files are read.
+    if !std::fs::metadata(&real_file).map_err(missing)?.is_file() {
+        return Err(InputError::new(
+            path,
+            format!("buffer {} is not a regular file", file.display()),
+            "point the buffer URI at a plain .bin file".to_string(),
+        ));
+    }
     std::fs::read(&real_file).map_err(missing)
 }
 
@@ -892,6 +900,22 @@ mod tests {
             assert!(e.message.contains("same folder"), "{uri}: {e}");
             assert_eq!(e.column.as_deref(), Some("buffers[0]"));
         }
+    }
+
+    /// A FIFO would block the reader forever (the watcher's review): refused, not opened.
+    #[test]
+    fn buffers_that_are_not_plain_files_are_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let (doc, bin) = one_triangle();
+        let path = write_external(dir.path(), doc, &bin, "mesh.bin");
+        std::fs::remove_file(dir.path().join("mesh.bin")).unwrap();
+        let made = std::process::Command::new("mkfifo")
+            .arg(dir.path().join("mesh.bin"))
+            .status()
+            .expect("mkfifo runs");
+        assert!(made.success());
+        let e = read_generator(&path).unwrap_err();
+        assert!(e.message.contains("not a regular file"), "{e}");
     }
 
     #[test]
