@@ -456,15 +456,15 @@ class SWEPTVOL_OT_compute(bpy.types.Operator):
                "imported": ""}
         JOBS.append(job)
         ok, warning = ensure_daemon(p, prefs.watch_folder(p))
-        if warning:
-            self.report({"WARNING"}, warning)
         self.report({"INFO"}, f"submitted {len(objects)} object(s), {len(frames)} frames: {job_dir}")
         wait = self.wait if self.properties.is_property_set("wait") else bpy.app.background
         if not wait:
+            if warning:
+                self.report({"WARNING"}, warning)
             start_polling()
             return {"FINISHED"}
         if not ok:
-            self.report({"ERROR"}, "not waiting: no daemon runs on the folder")
+            self.report({"ERROR"}, f"submitted, but not waiting for it: {warning}")
             return {"CANCELLED"}
         if not wait_for(job, self.timeout):
             self.report({"ERROR"}, f"the job did not finish within {self.timeout:g} s ({job['line']})")

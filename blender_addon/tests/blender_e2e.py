@@ -330,4 +330,24 @@ log("cancel: job ended", big["state"])
 bpy.ops.preferences.addon_disable(module="sweptvol_addon")
 daemon = exchange.read_json(os.path.join(jobs, ".sweptvol", "daemon.json")) or {}
 check(daemon.get("state") == "stopped", f"the daemon did not stop cleanly: {daemon}")
+
+# ---------------------------------------------------------------------------------------------
+# 7. With auto_start off and no daemon, the button still submits and says no daemon runs
+
+bpy.ops.preferences.addon_enable(module="sweptvol_addon")
+prefs = bpy.context.preferences.addons["sweptvol_addon"].preferences
+prefs.watch_folder, prefs.sweptvol_binary, prefs.auto_start = jobs, os.path.abspath(args.binary), False
+settings.resolution = args.resolution
+select([part])
+before = set(os.listdir(jobs))
+try:
+    bpy.ops.sweptvol.compute(wait=True, timeout=5)
+    raise AssertionError("waiting without a daemon should fail")
+except RuntimeError as e:
+    check("no sweptvol daemon seems to be running" in str(e), f"no 'no daemon' message: {e}")
+new = [n for n in set(os.listdir(jobs)) - before if not n.startswith(".")]
+check(len(new) == 1 and os.path.isfile(os.path.join(jobs, new[0], "trajectory.csv")),
+      f"the job was not submitted without a daemon: {new}")
+check(not exchange.daemon_alive(jobs)[0], "a daemon was started although auto_start is off")
+log("auto_start off: job submitted, no daemon started, the user is told")
 log("PASS")
