@@ -39,7 +39,7 @@ class SWEPTVOL_PT_panel(bpy.types.Panel):
         s = context.scene.sweptvol
         meshes = [o for o in context.selected_objects if o.type == "MESH"]
         box = layout.box()
-        box.label(text=f"{len(meshes)} object(s), each along its own animation", icon="OBJECT_DATA")
+        box.label(text=f"{len(meshes)} object(s) to sweep", icon="OBJECT_DATA")
         for o in meshes[:8]:
             box.label(text=o.name, icon="MESH_DATA")
         if len(meshes) > 8:
