@@ -7,13 +7,14 @@ Run by blender_addon/tests/run-e2e.sh:
 
 Installs the add-on zip into the (fresh) user scripts folder, builds a scene with two animated
 objects (one parented, with keyed translation and rotation and a scale that is not 1, one with a
-rigid modifier), presses `sweptvol.compute` (the add-on starts the daemon itself), and checks in
+rigid modifier and a constraint), presses `sweptvol.compute` (the add-on starts the daemon itself), and checks in
 Blender's world coordinates, at every sampled frame:
   1. every vertex (and face centre) of every posed object is inside the imported mesh
      (generalized winding number >= 0.5);
   2. every vertex of the imported mesh is within the reported bound of the posed objects.
 Also: a deforming object is refused with its name and cause, the depth images load readable,
-cancelling works, and disabling the add-on stops the daemon it started.
+a daemon error comes back as a Blender report, cancelling works, disabling the add-on stops the
+daemon it started, and with auto_start off the job is still submitted and the user told.
 """
 
 import argparse
@@ -110,6 +111,8 @@ bev = bar.modifiers.new("Bevel", "BEVEL")
 bev.width = 0.05
 key(bar, 1, loc=(-1.5, 0, 0), rot=(0, 0, 0))
 key(bar, 9, loc=(-1.0, 0.8, 0.5), rot=(45, 30, 0))
+clamp = bar.constraints.new("LIMIT_LOCATION")  # constraints count: x stops at -1.2
+clamp.use_max_x, clamp.max_x = True, -1.2
 
 # A deforming object (animated shape key): must be refused by name and cause.
 bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=1, radius=0.3, location=(0, -2, 0))
@@ -308,6 +311,19 @@ for img in imgs:
 log("depth images readable:", ", ".join(f"{i.name} {tuple(i.size)}" for i in imgs))
 check(bpy.ops.sweptvol.import_result(job=job["dir"]) == {"FINISHED"}, "import_result failed")
 check(len(coll.objects) == 1, "re-importing should replace the earlier result")
+
+# ---------------------------------------------------------------------------------------------
+# 4b. A job the daemon refuses: its message comes back as a Blender error report
+
+settings.accuracy, settings.tolerance = "TOLERANCE", 1e-6
+try:
+    bpy.ops.sweptvol.compute(wait=True, timeout=120)
+    raise AssertionError("a tolerance of 1e-6 should fail in the daemon")
+except RuntimeError as e:
+    check("sweptvol failed" in str(e) and "larger tolerance" in str(e), f"not the daemon's message: {e}")
+    log("daemon error reported:", str(e).strip())
+check(operators.JOBS[-1]["state"] == "failed", f"state {operators.JOBS[-1]['state']}")
+settings.accuracy = "RESOLUTION"
 
 # ---------------------------------------------------------------------------------------------
 # 5. Cancel: a big job submitted without waiting, cancelled, ends `cancelled`
