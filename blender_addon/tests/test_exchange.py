@@ -274,3 +274,24 @@ def test_daemon_liveness_from_heartbeat(tmp_path):
     assert ex.daemon_alive(folder, now=1000.5) == (False, None)
     assert ex.daemon_command("/bin/sweptvol", folder, "cpu") == ["/bin/sweptvol", "watch", folder, "--backend", "cpu"]
     assert ex.daemon_command("/bin/sweptvol", folder, "auto") == ["/bin/sweptvol", "watch", folder]
+
+
+# --- packaging ----------------------------------------------------------------------------------
+
+def test_manifest_and_bl_info_agree():
+    """Blender 4.2+ reads blender_manifest.toml, 3.x reads bl_info: same version, both present."""
+    import ast
+    import tomllib
+
+    root = os.path.join(os.path.dirname(__file__), "..", "sweptvol_addon")
+    with open(os.path.join(root, "blender_manifest.toml"), "rb") as f:
+        manifest = tomllib.load(f)
+    for key in ("schema_version", "id", "version", "name", "tagline", "maintainer", "type",
+                "blender_version_min", "license"):
+        assert key in manifest, key
+    assert manifest["type"] == "add-on" and manifest["id"] == "sweptvol_addon"
+    tree = ast.parse(open(os.path.join(root, "__init__.py")).read())
+    bl_info = next(ast.literal_eval(n.value) for n in tree.body
+                   if isinstance(n, ast.Assign) and getattr(n.targets[0], "id", "") == "bl_info")
+    assert ".".join(map(str, bl_info["version"])) == manifest["version"]
+    assert bl_info["blender"] <= (3, 4, 0)
