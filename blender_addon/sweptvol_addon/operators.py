@@ -20,7 +20,7 @@ POLL_SECONDS = 0.5
 
 # Jobs submitted in this session: dicts with dir, label, sources, scene, line, state, imported.
 JOBS = []
-_daemon = {"proc": None, "log": None}
+_daemons = {}  # folder -> (Popen, log file): the daemons this add-on started
 
 
 # ---------------------------------------------------------------------------------------------
@@ -32,8 +32,8 @@ def daemon_status(folder):
     alive, pid = exchange.daemon_alive(folder)
     if alive:
         return True, pid
-    proc = _daemon["proc"]
-    if proc is not None and proc.poll() is None and getattr(proc, "sweptvol_folder", None) == folder:
+    proc = _daemons.get(folder, (None, None))[0]
+    if proc is not None and proc.poll() is None:
         return True, proc.pid
     return False, None
 
@@ -52,31 +52,30 @@ def ensure_daemon(p, folder):
     if binary is None:
         return False, ("cannot start the daemon: the sweptvol binary was not found (set its path "
                        "in the add-on preferences); the job waits in the folder")
-    stop_daemon()  # one we started on another folder
+    stop_daemon(folder)  # one we started there that has exited: close its log
     log_path = os.path.join(folder, ".sweptvol-addon-daemon.log")
     log = open(log_path, "ab")
     proc = subprocess.Popen(exchange.daemon_command(binary, folder), stdin=subprocess.DEVNULL,
                             stdout=log, stderr=subprocess.STDOUT)
-    proc.sweptvol_folder = folder
-    _daemon.update(proc=proc, log=log)
+    _daemons[folder] = (proc, log)
     time.sleep(0.2)
     if proc.poll() is not None:
         return False, f"the sweptvol daemon exited at once (status {proc.returncode}); see {log_path}"
     return True, ""
 
 
-def stop_daemon():
-    """Stop the daemon this add-on started (SIGTERM: it re-queues a running job and exits)."""
-    proc, log = _daemon["proc"], _daemon["log"]
-    _daemon.update(proc=None, log=None)
-    if proc is not None and proc.poll() is None:
-        proc.terminate()
-        try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-    if log is not None:
+def stop_daemon(folder=None):
+    """Stop the daemons this add-on started (all, or the one on `folder`). SIGTERM: a daemon
+    stops its running job at a safe point, leaves it queued for its next start, and exits."""
+    for key in [k for k in _daemons if folder is None or k == folder]:
+        proc, log = _daemons.pop(key)
+        if proc.poll() is None:
+            proc.terminate()
+            try:
+                proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
         log.close()
 
 
