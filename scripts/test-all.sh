@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Set up a fresh Debian machine for sweptvol's tests and run every one of them.
 # Installs (only what is missing): lavapipe, the Vulkan loader, Node and npm, a Python venv with
-# the independent EXR reader, the Khronos glTF validator. Then: format, lints, all tests (GPU path on lavapipe), the example.
+# the independent EXR reader and pytest, the Khronos glTF validator, Blender (Debian's 3.4). Then:
+# format, lints, all tests (GPU path on lavapipe), the example, the Blender add-on's tests.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -20,7 +21,7 @@ apt_install() {
 
 say "system packages"
 missing=()
-for p in mesa-vulkan-drivers libvulkan1; do
+for p in mesa-vulkan-drivers libvulkan1 blender; do
     dpkg -s "$p" >/dev/null 2>&1 || missing+=("$p")
 done
 python3 -m venv --help >/dev/null 2>&1 || missing+=(python3-venv)
@@ -28,11 +29,11 @@ command -v node >/dev/null 2>&1 || missing+=(nodejs)
 command -v npm >/dev/null 2>&1 || missing+=(npm)
 if ((${#missing[@]})); then apt_install "${missing[@]}"; else echo "all present"; fi
 
-say "Python venv for the independent EXR reader"
+say "Python venv for the independent EXR reader and the add-on's pytest"
 venv=target/test-venv
-if ! "$venv/bin/python" -c 'import OpenEXR, numpy' 2>/dev/null; then
+if ! "$venv/bin/python" -c 'import OpenEXR, numpy, pytest' 2>/dev/null; then
     python3 -m venv "$venv"
-    "$venv/bin/pip" install -q --disable-pip-version-check OpenEXR numpy
+    "$venv/bin/pip" install -q --disable-pip-version-check OpenEXR numpy pytest
 fi
 
 say "Khronos glTF validator (npm)"
@@ -57,3 +58,9 @@ cargo run --release --locked -- run --generator examples/bunny.glb \
     --trajectory examples/bunny-vibration.csv --out target/example-results --resolution 128 --overwrite --quiet
 ls target/example-results
 node tools/gltf-validator/validate.mjs target/example-results/bunny-vibration.swept.glb
+
+say "Blender add-on: exchange code (pytest, no Blender)"
+"$venv/bin/python" -m pytest -q -p no:cacheprovider blender_addon/tests/test_exchange.py
+
+say "Blender add-on: real Blender, headless, against a real daemon (CPU backend)"
+blender_addon/tests/run-e2e.sh target/release/sweptvol

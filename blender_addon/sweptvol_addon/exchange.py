@@ -1,0 +1,411 @@
+"""The folder exchange protocol of `sweptvol watch`, in plain Python (no bpy).
+
+docs/exchange-protocol.md is the contract; this module is the add-on's side of it:
+job folders written as `<job>.partial/` and renamed to `<job>/`, `job.json`, the trajectory
+CSV in the node + matrix form, `status.json` and `report.json` reading, the daemon's
+heartbeat, and the coordinate conversion between Blender (Z up) and glTF (Y up).
+
+Matrices are 4x4 row-major lists of lists of floats, acting on column vectors: p' = M·p.
+Everything here is tested by `blender_addon/tests/test_exchange.py` without Blender.
+"""
+
+import json
+import math
+import os
+import re
+import struct
+import time
+
+# ---------------------------------------------------------------------------------------------
+# Small 4x4 algebra (no numpy: this module must import anywhere)
+
+# The glTF exporter maps Blender (x, y, z) to glTF (x, z, -y): p_gltf = C·p_blender.
+C = [[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]]
+C_T = [[C[j][i] for j in range(4)] for i in range(4)]  # = C⁻¹ (a rotation)
+
+IDENTITY = [[1.0 if i == j else 0.0 for j in range(4)] for i in range(4)]
+
+
+def matmul(a, b):
+    return [[sum(a[i][k] * b[k][j] for k in range(4)) for j in range(4)] for i in range(4)]
+
+
+def transform_point(m, p):
+    return tuple(m[i][0] * p[0] + m[i][1] * p[1] + m[i][2] * p[2] + m[i][3] for i in range(3))
+
+
+def affine_inverse(m):
+    """Inverse of an affine 4x4 matrix (last row 0 0 0 1); raises ValueError if singular."""
+    a = [row[:3] for row in m[:3]]
+    det = (
+        a[0][0] * (a[1][1] * a[2][2] - a[1][2] * a[2][1])
+        - a[0][1] * (a[1][0] * a[2][2] - a[1][2] * a[2][0])
+        + a[0][2] * (a[1][0] * a[2][1] - a[1][1] * a[2][0])
+    )
+    scale = max(abs(x) for row in a for x in row) or 1.0
+    if not math.isfinite(det) or abs(det) <= 1e-12 * scale**3:
+        raise ValueError("the matrix is singular (a zero scale?)")
+    inv = [[0.0] * 3 for _ in range(3)]
+    for i in range(3):
+        for j in range(3):
+            # cofactor of a[j][i] (transposed adjugate)
+            r = [k for k in range(3) if k != j]
+            c = [k for k in range(3) if k != i]
+            minor = a[r[0]][c[0]] * a[r[1]][c[1]] - a[r[0]][c[1]] * a[r[1]][c[0]]
+            inv[i][j] = (-1) ** (i + j) * minor / det
+    t = [m[0][3], m[1][3], m[2][3]]
+    out = [inv[i] + [-sum(inv[i][k] * t[k] for k in range(3))] for i in range(3)]
+    return out + [[0.0, 0.0, 0.0, 1.0]]
+
+
+def blender_to_gltf(m):
+    """A Blender-space transform as the same transform in glTF space: C·M·Cᵀ."""
+    return matmul(matmul(C, m), C_T)
+
+
+def gltf_point_to_blender(p):
+    """glTF (x, y, z) -> Blender (x, -z, y): Cᵀ·p."""
+    return (p[0], -p[2], p[1])
+
+
+def trajectory_row(world_blender, exported_world_gltf):
+    """The matrix row of the trajectory CSV for one object at one frame.
+
+    The exporter writes the object's mesh in its own (local) space with the axes changed,
+    u = C·v, and puts it under a node whose world matrix in the file is W (glTF space), so
+    sweptvol sees the point W·u. At the frame the object's vertex v sits at M_f·v in Blender
+    world space, that is C·M_f·v in glTF space. The row R must satisfy R·W·C·v = C·M_f·v for
+    every v, hence R = C·M_f·Cᵀ·W⁻¹.
+
+    W is read back from the exported file, so whatever pose the exporter chose (the frame-0
+    trap) cancels out. If the exporter placed the node where Blender had the object at frame
+    r, W = C·M_r·Cᵀ and R = C·M_f·M_r⁻¹·Cᵀ.
+    """
+    return matmul(blender_to_gltf(world_blender), affine_inverse(exported_world_gltf))
+
+
+# ---------------------------------------------------------------------------------------------
+# GLB reading: node world matrices (for the rows) and the result mesh (for the import)
+
+GLB_MAGIC = 0x46546C67
+CHUNK_JSON = 0x4E4F534A
+CHUNK_BIN = 0x004E4942
+
+
+def read_glb(path):
+    """(json dict, binary chunk bytes or b"") of a .glb file."""
+    with open(path, "rb") as f:
+        data = f.read()
+    if len(data) < 20:
+        raise ValueError(f"{path}: too short for a .glb file")
+    magic, version, length = struct.unpack_from("<III", data, 0)
+    if magic != GLB_MAGIC or version != 2:
+        raise ValueError(f"{path}: not a glTF 2.0 binary file")
+    offset, doc, binary = 12, None, b""
+    while offset + 8 <= min(length, len(data)):
+        chunk_len, chunk_type = struct.unpack_from("<II", data, offset)
+        chunk = data[offset + 8 : offset + 8 + chunk_len]
+        if chunk_type == CHUNK_JSON and doc is None:
+            doc = json.loads(chunk.decode("utf-8"))
+        elif chunk_type == CHUNK_BIN and not binary:
+            binary = chunk
+        offset += 8 + chunk_len
+    if doc is None:
+        raise ValueError(f"{path}: no JSON chunk")
+    return doc, binary
+
+
+def node_local_matrix(node):
+    """A glTF node's local matrix (row-major), from `matrix` (column-major) or T·R·S."""
+    if "matrix" in node:
+        m = node["matrix"]
+        return [[float(m[c * 4 + r]) for c in range(4)] for r in range(4)]
+    tx, ty, tz = node.get("translation", [0.0, 0.0, 0.0])
+    qx, qy, qz, qw = node.get("rotation", [0.0, 0.0, 0.0, 1.0])
+    sx, sy, sz = node.get("scale", [1.0, 1.0, 1.0])
+    r = [
+        [1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qz * qw), 2 * (qx * qz + qy * qw)],
+        [2 * (qx * qy + qz * qw), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qx * qw)],
+        [2 * (qx * qz - qy * qw), 2 * (qy * qz + qx * qw), 1 - 2 * (qx * qx + qy * qy)],
+    ]
+    s, t = (sx, sy, sz), (tx, ty, tz)
+    return [[r[i][j] * s[j] for j in range(3)] + [t[i]] for i in range(3)] + [[0.0, 0.0, 0.0, 1.0]]
+
+
+def _mesh_nodes(doc):
+    """(node, world matrix) for every node with a mesh in the default scene (else the first
+    scene; without scenes, every root), in traversal order."""
+    nodes = doc.get("nodes", [])
+    scenes = doc.get("scenes", [])
+    if scenes:
+        roots = scenes[doc.get("scene", 0)].get("nodes", [])
+    else:
+        children = {c for n in nodes for c in n.get("children", [])}
+        roots = [i for i in range(len(nodes)) if i not in children]
+    stack = [(i, IDENTITY) for i in reversed(roots)]
+    while stack:
+        i, parent = stack.pop()
+        node = nodes[i]
+        world = matmul(parent, node_local_matrix(node))
+        if "mesh" in node:
+            yield node, world
+        stack.extend((c, world) for c in reversed(node.get("children", [])))
+
+
+def mesh_node_worlds(doc):
+    """[(node name, world matrix)]: where the file puts each mesh node, what sweptvol reads
+    as the generator's parts before any row moves them."""
+    return [(node.get("name", ""), world) for node, world in _mesh_nodes(doc)]
+
+
+_COMPONENT = {5120: ("b", 1), 5121: ("B", 1), 5122: ("h", 2), 5123: ("H", 2), 5125: ("I", 4), 5126: ("f", 4)}
+_WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}
+
+
+def _accessor(doc, binary, index):
+    acc = doc["accessors"][index]
+    fmt, size = _COMPONENT[acc["componentType"]]
+    width = _WIDTH[acc["type"]]
+    count = acc["count"]
+    if "bufferView" not in acc:
+        return [tuple([0] * width)] * count
+    view = doc["bufferViews"][acc["bufferView"]]
+    if view.get("buffer", 0) != 0:
+        raise ValueError("only the GLB's own buffer is supported")
+    start = view.get("byteOffset", 0) + acc.get("byteOffset", 0)
+    stride = view.get("byteStride") or size * width
+    return [struct.unpack_from("<" + fmt * width, binary, start + k * stride) for k in range(count)]
+
+
+def read_glb_mesh(path):
+    """The triangles of every mesh node of a .glb, in glTF world space: (points, triangles).
+
+    Enough for sweptvol's own output (indexed or not, TRIANGLES mode); other primitive modes
+    are skipped."""
+    doc, binary = read_glb(path)
+    points, tris = [], []
+    for node, world in _mesh_nodes(doc):
+        for prim in doc["meshes"][node["mesh"]].get("primitives", []):
+            if prim.get("mode", 4) != 4:
+                continue
+            pos = _accessor(doc, binary, prim["attributes"]["POSITION"])
+            base = len(points)
+            points.extend(transform_point(world, p) for p in pos)
+            if "indices" in prim:
+                idx = [i[0] for i in _accessor(doc, binary, prim["indices"])]
+            else:
+                idx = list(range(len(pos)))
+            tris.extend((base + idx[k], base + idx[k + 1], base + idx[k + 2]) for k in range(0, len(idx) - 2, 3))
+    return points, tris
+
+
+# ---------------------------------------------------------------------------------------------
+# Trajectory CSV (node + matrix form, see src/io/trajectory.rs)
+
+MATRIX_COLUMNS = [f"m{r}{c}" for r in range(4) for c in range(4)]
+
+
+def csv_field(text):
+    """A CSV field for a node name: quoted when it holds a comma, a quote or edge spaces."""
+    if "\n" in text or "\r" in text:
+        raise ValueError(f"the name {text!r} holds a line break, which a CSV row cannot carry")
+    if not text:
+        raise ValueError("a node name is empty")
+    if any(ch in text for ch in ',"') or text != text.strip():
+        return '"' + text.replace('"', '""') + '"'
+    return text
+
+
+def _number(x):
+    x = float(x)
+    if not math.isfinite(x):
+        raise ValueError(f"a matrix entry is not finite ({x})")
+    return repr(x + 0.0)  # shortest round-trip text; -0.0 becomes 0.0
+
+
+def trajectory_csv(rows):
+    """CSV text for rows of (frame, node name, 4x4 matrix in glTF space)."""
+    lines = ["# written by the sweptvol Blender add-on: each row maps the node as exported to "
+             "its placement at that frame (glTF space)",
+             ",".join(["frame", "node"] + MATRIX_COLUMNS)]
+    for frame, node, m in rows:
+        values = [m[r][c] for r in range(4) for c in range(4)]
+        lines.append(",".join([_number(frame), csv_field(node)] + [_number(v) for v in values]))
+    return "\n".join(lines) + "\n"
+
+
+# ---------------------------------------------------------------------------------------------
+# Job folders
+
+PARTIAL_SUFFIX = ".partial"
+JOB_KEYS = ("resolution", "tolerance", "delta", "epsilon", "backend", "name",
+            "target_triangles", "keep_start_mesh")
+FINISHED = ("done", "failed", "cancelled")
+DEPTH_IMAGES = tuple(f"depth-{a}{s}.exr" for a in "xyz" for s in ("min", "max"))
+
+
+def job_name(base, folder, now=None):
+    """A fresh job folder name from `base` (e.g. the objects' names): safe characters, not
+    starting with `.`, not ending with `.partial`, not present in `folder` in either form."""
+    stem = re.sub(r"[^A-Za-z0-9_-]+", "-", base).strip("-.")[:40] or "job"
+    stamp = time.strftime("%Y%m%d-%H%M%S", time.localtime(now if now is not None else time.time()))
+    name = f"{stem}-{stamp}"
+    for k in range(1, 10000):
+        candidate = name if k == 1 else f"{name}-{k}"
+        if not any(os.path.lexists(os.path.join(folder, candidate + s)) for s in ("", PARTIAL_SUFFIX)):
+            return candidate
+    raise RuntimeError("no free job name")
+
+
+def job_options(**options):
+    """The `job.json` object: drops None values, refuses unknown keys and both accuracies."""
+    opts = {k: v for k, v in options.items() if v is not None}
+    unknown = sorted(set(opts) - set(JOB_KEYS))
+    if unknown:
+        raise ValueError(f"unknown job option(s) {', '.join(unknown)}")
+    if "resolution" in opts and "tolerance" in opts:
+        raise ValueError("give either a resolution or a tolerance, not both")
+    if "resolution" in opts and (not isinstance(opts["resolution"], int) or opts["resolution"] < 1):
+        raise ValueError("the resolution must be a positive integer")
+    if "tolerance" in opts and not (float(opts["tolerance"]) > 0 and math.isfinite(opts["tolerance"])):
+        raise ValueError("the tolerance must be a positive number")
+    if opts.get("backend", "auto") not in ("auto", "gpu", "cpu"):
+        raise ValueError("the backend must be auto, gpu or cpu")
+    return opts
+
+
+def begin_job(folder, name):
+    """Create `folder/<name>.partial/` (exclusively) and return its path."""
+    if name.startswith(".") or name.endswith(PARTIAL_SUFFIX) or "/" in name or os.sep in name:
+        raise ValueError(f"{name!r} is not a valid job name")
+    if os.path.lexists(os.path.join(folder, name)):
+        raise FileExistsError(f"a job named {name} already exists in {folder}")
+    partial = os.path.join(folder, name + PARTIAL_SUFFIX)
+    os.mkdir(partial)
+    return partial
+
+
+def _write_file(path, data):
+    with open(path, "wb") as f:
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
+
+
+def write_job_inputs(partial, csv_text, options):
+    """Write trajectory.csv and job.json into a `.partial` folder (generator.glb is written by
+    the exporter beside them)."""
+    _write_file(os.path.join(partial, "trajectory.csv"), csv_text.encode("utf-8"))
+    _write_file(os.path.join(partial, "job.json"), (json.dumps(job_options(**options), indent=1) + "\n").encode())
+
+
+def commit_job(partial):
+    """Rename `<job>.partial/` to `<job>/`: the commit. Returns the job folder."""
+    if not partial.endswith(PARTIAL_SUFFIX):
+        raise ValueError(f"{partial} is not a .partial folder")
+    if not os.path.isfile(os.path.join(partial, "generator.glb")):
+        raise FileNotFoundError(f"{partial} has no generator.glb")
+    if not os.path.isfile(os.path.join(partial, "trajectory.csv")):
+        raise FileNotFoundError(f"{partial} has no trajectory.csv")
+    final = partial[: -len(PARTIAL_SUFFIX)]
+    if os.path.lexists(final):
+        raise FileExistsError(f"{final} already exists")
+    os.rename(partial, final)
+    return final
+
+
+def abandon_job(partial):
+    """Remove a `.partial` folder that will not be committed (the daemon never reads it)."""
+    if partial and partial.endswith(PARTIAL_SUFFIX) and os.path.isdir(partial):
+        for name in os.listdir(partial):
+            os.remove(os.path.join(partial, name))
+        os.rmdir(partial)
+
+
+def request_cancel(job_dir):
+    """Create the `cancel` file in a job folder."""
+    with open(os.path.join(job_dir, "cancel"), "a"):
+        pass
+
+
+def read_json(path):
+    """A JSON object from a file, or None if it is missing or not (yet) an object."""
+    try:
+        with open(path, "rb") as f:
+            value = json.loads(f.read().decode("utf-8"))
+    except (OSError, ValueError):
+        return None
+    return value if isinstance(value, dict) else None
+
+
+def read_status(job_dir):
+    """`status.json` of a job folder as a dict (None while there is none)."""
+    return read_json(os.path.join(job_dir, "status.json"))
+
+
+def read_report(job_dir):
+    return read_json(os.path.join(job_dir, "report.json"))
+
+
+def describe_status(status):
+    """One line for the panel and the status bar."""
+    if status is None:
+        return "waiting for the daemon"
+    state = status.get("state", "?")
+    if state == "running":
+        pct = 100.0 * float(status.get("progress") or 0.0)
+        return f"running: {status.get('stage') or ''} {pct:.0f}%"
+    if state in ("failed", "cancelled") and status.get("message"):
+        return f"{state}: {status['message']}"
+    return state
+
+
+def result_summary(report):
+    """The custom properties put on the imported mesh: the guarantee and the counts."""
+    mesh = report.get("mesh", {}) if report else {}
+    counts = report.get("counts", {}) if report else {}
+    params = report.get("parameters", {}) if report else {}
+    out = {}
+    for key, value in (
+        ("sweptvol_hausdorff_bound", mesh.get("hausdorff_bound")),
+        ("sweptvol_clearance", mesh.get("clearance")),
+        ("sweptvol_voxel_size", params.get("voxel_size")),
+        ("sweptvol_volume", mesh.get("volume")),
+        ("sweptvol_triangles", mesh.get("triangles_final")),
+        ("sweptvol_vertices", mesh.get("vertices")),
+        ("sweptvol_poses", counts.get("poses")),
+        ("sweptvol_posed_triangles", counts.get("posed_triangles")),
+        ("sweptvol_generator_triangles", counts.get("triangles")),
+        ("sweptvol_resolution", report.get("resolution") if report else None),
+        ("sweptvol_version", report.get("sweptvol_version") if report else None),
+    ):
+        if isinstance(value, list):
+            value = [v for v in value]
+        if value is not None:
+            out[key] = value
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# The daemon
+
+def daemon_alive(folder, now=None):
+    """(alive, pid or None): a daemon runs on `folder` if `.sweptvol/daemon.json` says
+    `running` and its heartbeat is less than three intervals old."""
+    info = read_json(os.path.join(folder, ".sweptvol", "daemon.json"))
+    if not info or info.get("state") != "running":
+        return False, None
+    now = time.time() if now is None else now
+    try:
+        age = now - float(info["heartbeat_at"])
+        interval = float(info.get("heartbeat_interval_s", 2.0))
+    except (KeyError, TypeError, ValueError):
+        return False, None
+    return age < 3.0 * interval, info.get("pid")
+
+
+def daemon_command(binary, folder, backend=None):
+    cmd = [binary, "watch", folder]
+    if backend and backend != "auto":
+        cmd += ["--backend", backend]
+    return cmd

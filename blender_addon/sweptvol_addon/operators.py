@@ -1,0 +1,576 @@
+"""Operators: compute (export -> job folder), cancel, import the result, open the depth images.
+
+The bpy edge of the add-on; the protocol itself lives in `exchange.py` (no bpy).
+"""
+
+import atexit
+import math
+import os
+import subprocess
+import time
+
+import bpy
+import numpy as np
+
+from . import exchange, prefs
+
+COLLECTION = "Swept Volumes"
+MATERIAL = "sweptvol swept volume"
+POLL_SECONDS = 0.5
+
+# Jobs submitted in this session: dicts with dir, label, sources, scene, line, state, imported.
+JOBS = []
+_daemons = {}  # folder -> (Popen, log file): the daemons this add-on started
+
+
+# ---------------------------------------------------------------------------------------------
+# The daemon
+
+
+def daemon_status(folder):
+    """(running, pid): a live heartbeat, or a daemon we started that has not exited yet."""
+    alive, pid = exchange.daemon_alive(folder)
+    if alive:
+        return True, pid
+    proc = _daemons.get(folder, (None, None))[0]
+    if proc is not None and proc.poll() is None:
+        return True, proc.pid
+    return False, None
+
+
+def ensure_daemon(p, folder):
+    """Start `sweptvol watch folder` if none runs and auto_start is on.
+    Returns (ok, message): message is a warning for the user, or ''."""
+    running, _ = daemon_status(folder)
+    if running:
+        return True, ""
+    if not p.auto_start:
+        return False, (f"no sweptvol daemon seems to be running on {folder}: the job waits there "
+                       f"until one starts (`sweptvol watch {folder}`, or turn on "
+                       "'Start the daemon when needed')")
+    binary = prefs.binary_path(p)
+    if binary is None:
+        return False, ("cannot start the daemon: the sweptvol binary was not found (set its path "
+                       "in the add-on preferences); the job waits in the folder")
+    stop_daemon(folder)  # one we started there that has exited: close its log
+    log_path = os.path.join(folder, ".sweptvol-addon-daemon.log")
+    log = open(log_path, "ab")
+    proc = subprocess.Popen(exchange.daemon_command(binary, folder), stdin=subprocess.DEVNULL,
+                            stdout=log, stderr=subprocess.STDOUT)
+    _daemons[folder] = (proc, log)
+    time.sleep(0.2)
+    if proc.poll() is not None:
+        return False, f"the sweptvol daemon exited at once (status {proc.returncode}); see {log_path}"
+    return True, ""
+
+
+def stop_daemon(folder=None):
+    """Stop the daemons this add-on started (all, or the one on `folder`). SIGTERM: a daemon
+    stops its running job at a safe point, leaves it queued for its next start, and exits."""
+    for key in [k for k in _daemons if folder is None or k == folder]:
+        proc, log = _daemons.pop(key)
+        if proc.poll() is None:
+            proc.terminate()
+            try:
+                proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+        log.close()
+
+
+atexit.register(stop_daemon)
+
+
+# ---------------------------------------------------------------------------------------------
+# Sampling the animation
+
+
+def frame_samples(start, end, step):
+    if not step > 0:
+        raise ValueError("the frame step must be positive")
+    if end < start:
+        raise ValueError("the last frame is before the first")
+    n = int(math.floor((end - start) / step + 1e-9))
+    return [start + k * step for k in range(n + 1)]
+
+
+def set_frame(scene, f):
+    whole = math.floor(f)
+    scene.frame_set(int(whole), subframe=float(f - whole))
+
+
+def _mesh_coords(obj, depsgraph):
+    ev = obj.evaluated_get(depsgraph)
+    mesh = ev.to_mesh()
+    try:
+        co = np.empty(len(mesh.vertices) * 3, dtype=np.float64)
+        mesh.vertices.foreach_get("co", co)
+        ntris = sum(len(p.vertices) - 2 for p in mesh.polygons)
+    finally:
+        ev.to_mesh_clear()
+    return co.reshape(-1, 3), ntris
+
+
+def deform_cause(obj):
+    """Why an object's evaluated mesh may change over time (for the refusal message)."""
+    mods = [m for m in obj.modifiers if m.show_viewport]
+    arm = [m for m in mods if m.type == "ARMATURE"]
+    if arm:
+        return f"its Armature modifier '{arm[0].name}' deforms it"
+    keys = obj.data.shape_keys if obj.type == "MESH" else None
+    if keys is not None and len(keys.key_blocks) > 1:
+        return "its shape keys change it"
+    if mods:
+        return "its modifier(s) " + ", ".join(f"'{m.name}' ({m.type.lower()})" for m in mods) + " change it"
+    return "its mesh changes over time (drivers or animated mesh data)"
+
+
+def sample(context, objects, frames):
+    """World matrices (Blender space) per object per frame, and the rigid check.
+    Returns {name: [matrix per frame]} or raises ValueError naming the object and the cause."""
+    scene = context.scene
+    ref = {}
+    worlds = {o.name: [] for o in objects}
+    for f in frames:
+        set_frame(scene, f)
+        depsgraph = context.evaluated_depsgraph_get()
+        for o in objects:
+            ev = o.evaluated_get(depsgraph)
+            worlds[o.name].append([list(row) for row in ev.matrix_world])
+            co, ntris = _mesh_coords(o, depsgraph)
+            if o.name not in ref:
+                if ntris == 0:
+                    raise ValueError(f"'{o.name}' has no faces at frame {f:g}: nothing to sweep")
+                size = float(np.linalg.norm(co.max(axis=0) - co.min(axis=0))) if len(co) else 0.0
+                ref[o.name] = (co, 1e-5 * max(size, 1e-6))
+                continue
+            co0, tol = ref[o.name]
+            if co.shape != co0.shape:
+                raise ValueError(f"'{o.name}' cannot be swept as a rigid part: its vertex count "
+                                 f"changes at frame {f:g} ({deform_cause(o)})")
+            err = float(np.abs(co - co0).max()) if len(co) else 0.0
+            if err > tol:
+                raise ValueError(f"'{o.name}' cannot be swept as a rigid part: its mesh deforms "
+                                 f"(by {err:.3g} at frame {f:g}); {deform_cause(o)}. Apply or "
+                                 "remove the deformation, or sweep a rigid proxy")
+    return worlds
+
+
+# ---------------------------------------------------------------------------------------------
+# Submitting
+
+
+def export_generator(context, objects, path):
+    """glTF export of exactly `objects` (one node each, modifiers applied) at the current frame."""
+    view_layer = context.view_layer
+    old_sel = [o for o in view_layer.objects if o.select_get()]
+    old_active = view_layer.objects.active
+    try:
+        for o in old_sel:
+            o.select_set(False)
+        for o in objects:
+            o.select_set(True)
+        view_layer.objects.active = objects[0]
+        bpy.ops.export_scene.gltf(
+            filepath=path, export_format="GLB", use_selection=True, export_apply=True,
+            export_current_frame=True, export_animations=False, export_skins=False,
+            export_morph=False, export_materials="NONE", export_texcoords=False,
+            export_normals=False, export_colors=False, export_cameras=False,
+            export_lights=False, export_extras=False, export_yup=True)
+    finally:
+        for o in objects:
+            o.select_set(False)
+        for o in old_sel:
+            o.select_set(True)
+        view_layer.objects.active = old_active
+
+
+def submit(context, objects, frames, options):
+    """Export, write rows and job.json, commit. Returns the job folder. Raises on error
+    (ValueError for the user's data, OSError for the folder)."""
+    p = prefs.get(context)
+    folder = prefs.watch_folder(p)
+    if not folder:
+        raise ValueError("set the watched folder in the add-on preferences")
+    os.makedirs(folder, exist_ok=True)
+    scene = context.scene
+    old_frame, old_sub = scene.frame_current, scene.frame_subframe
+    partial = None
+    try:
+        worlds = sample(context, objects, frames)
+        label = "+".join(o.name for o in objects)
+        name = exchange.job_name(label, folder)
+        partial = exchange.begin_job(folder, name)
+        # Export at the first sampled frame; the rows do not depend on it (W is read back).
+        set_frame(scene, frames[0])
+        glb = os.path.join(partial, "generator.glb")
+        export_generator(context, objects, glb)
+        doc, _ = exchange.read_glb(glb)
+        placed = {}
+        for node_name, w in exchange.mesh_node_worlds(doc):
+            placed.setdefault(node_name, []).append(w)
+        rows = []
+        for o in objects:
+            if len(placed.get(o.name, [])) != 1:
+                raise ValueError(f"the glTF exporter wrote {len(placed.get(o.name, []))} mesh nodes "
+                                 f"named '{o.name}' (expected one)")
+            w = placed[o.name][0]
+            for f, m in zip(frames, worlds[o.name]):
+                rows.append((f, o.name, exchange.trajectory_row(m, w)))
+        options = dict(options, name=label[:200])
+        exchange.write_job_inputs(partial, exchange.trajectory_csv(rows), options)
+        job_dir = exchange.commit_job(partial)
+        partial = None
+        return job_dir
+    finally:
+        if partial is not None:
+            exchange.abandon_job(partial)
+        scene.frame_set(old_frame, subframe=old_sub)
+
+
+# ---------------------------------------------------------------------------------------------
+# Results
+
+
+def _material():
+    mat = bpy.data.materials.get(MATERIAL)
+    if mat is None:
+        mat = bpy.data.materials.new(MATERIAL)
+        mat.diffuse_color = (0.15, 0.55, 1.0, 0.3)  # solid view: semi-transparent
+        mat.use_nodes = True
+        bsdf = mat.node_tree.nodes.get("Principled BSDF")
+        if bsdf is not None:
+            bsdf.inputs["Base Color"].default_value = (0.15, 0.55, 1.0, 1.0)
+            bsdf.inputs["Alpha"].default_value = 0.3
+        mat.blend_method = "BLEND"
+        mat.shadow_method = "NONE"
+        mat.show_transparent_back = False
+    return mat
+
+
+def import_result(job_dir, scene=None, label=None):
+    """Import `job_dir/swept.glb` into the collection "Swept Volumes" as one object named after
+    the source, with the report's bound and counts as custom properties. Returns the object."""
+    status = exchange.read_status(job_dir)
+    if not status or status.get("state") != "done":
+        raise ValueError(f"the job {os.path.basename(job_dir)} is not done "
+                         f"({exchange.describe_status(status)})")
+    report = exchange.read_report(job_dir) or {}
+    points, tris = exchange.read_glb_mesh(os.path.join(job_dir, "swept.glb"))
+    label = label or status.get("name") or os.path.basename(job_dir)
+    obj_name = f"{label} swept volume"[:63]
+    mesh = bpy.data.meshes.new(obj_name)
+    mesh.from_pydata([exchange.gltf_point_to_blender(p) for p in points], [], tris)
+    mesh.update()
+    mesh.materials.append(_material())
+    scene = scene or bpy.context.scene
+    coll = bpy.data.collections.get(COLLECTION)
+    if coll is None:
+        coll = bpy.data.collections.new(COLLECTION)
+    if coll.name not in scene.collection.children:
+        scene.collection.children.link(coll)
+    obj = coll.objects.get(obj_name)
+    if obj is not None and obj.type == "MESH":
+        old = obj.data
+        obj.data = mesh
+        if old.users == 0:
+            bpy.data.meshes.remove(old)
+    else:
+        obj = bpy.data.objects.new(obj_name, mesh)
+        coll.objects.link(obj)
+    obj.show_transparent = True
+    for key, value in exchange.result_summary(report).items():
+        obj[key] = value
+    obj["sweptvol_job"] = job_dir
+    obj["sweptvol_sources"] = label
+    return obj
+
+
+def depth_images(job_dir):
+    """Load the six depth EXRs as Blender images (their `Y` channel is what the editor shows)."""
+    images = []
+    for name in exchange.DEPTH_IMAGES:
+        path = os.path.join(job_dir, name)
+        if not os.path.isfile(path):
+            continue
+        img = bpy.data.images.load(path, check_existing=True)
+        img.name = f"{os.path.basename(job_dir)} {name}"
+        img.colorspace_settings.name = "Non-Color"
+        img.reload()
+        images.append(img)
+    return images
+
+
+def show_in_image_editor(context, image):
+    """Show `image` in an image editor: the screen's own if it has one, else a new window."""
+    area = next((a for a in context.screen.areas if a.type == "IMAGE_EDITOR"), None)
+    if area is None:
+        bpy.ops.wm.window_new()
+        area = context.window_manager.windows[-1].screen.areas[0]
+        area.type = "IMAGE_EDITOR"
+    area.spaces.active.image = image
+
+
+def last_job(state=None):
+    for job in reversed(JOBS):
+        if state is None or job["state"] == state:
+            return job
+    return None
+
+
+# ---------------------------------------------------------------------------------------------
+# Progress: a timer reads status.json (never blocks), and the background-mode wait
+
+
+def _redraw():
+    wm = bpy.context.window_manager
+    for window in getattr(wm, "windows", []):
+        for area in window.screen.areas:
+            if area.type in ("VIEW_3D", "STATUSBAR"):
+                area.tag_redraw()
+
+
+def _report(level, message):
+    print(f"sweptvol: {level}: {message}")
+    if not bpy.app.background:
+        try:
+            bpy.ops.sweptvol.report_message(level=level, message=message)
+        except Exception:  # no window context: the panel still shows the line
+            pass
+
+
+def update_job(job):
+    """Refresh one job from its status.json; import when it is done. Returns True if finished."""
+    if job["state"] in exchange.FINISHED:
+        return True
+    status = exchange.read_status(job["dir"])
+    job["line"] = exchange.describe_status(status)
+    job["progress"] = float((status or {}).get("progress") or 0.0)
+    state = (status or {}).get("state", "submitted")
+    if state not in exchange.FINISHED:
+        job["state"] = state
+        return False
+    job["state"] = state
+    if state == "done":
+        try:
+            scene = bpy.data.scenes.get(job["scene"]) or bpy.context.scene
+            obj = import_result(job["dir"], scene, job["label"])
+            job["imported"] = obj.name
+            job["line"] = f"done: imported '{obj.name}'"
+            _report("INFO", f"swept volume of {job['label']} imported as '{obj.name}'")
+        except Exception as e:
+            job["state"] = "failed"
+            job["line"] = f"import failed: {e}"
+            _report("ERROR", f"importing the swept volume failed: {e}")
+    elif state == "failed":
+        _report("ERROR", f"sweptvol failed for {job['label']}: {status.get('message', '')}")
+    else:
+        _report("WARNING", f"sweptvol job for {job['label']} cancelled")
+    return True
+
+
+def _poll_timer():
+    busy = False
+    for job in JOBS:
+        if not update_job(job):
+            busy = True
+    _redraw()
+    return POLL_SECONDS if busy else None
+
+
+def start_polling():
+    if not bpy.app.timers.is_registered(_poll_timer):
+        bpy.app.timers.register(_poll_timer, first_interval=POLL_SECONDS)
+
+
+def wait_for(job, timeout):
+    """Background mode: block until the job finishes (or the timeout passes)."""
+    deadline = time.monotonic() + timeout if timeout > 0 else None
+    last = None
+    while not update_job(job):
+        if job["line"] != last:
+            print(f"sweptvol: {job['label']}: {job['line']}", flush=True)
+            last = job["line"]
+        if deadline is not None and time.monotonic() > deadline:
+            return False
+        time.sleep(0.2)
+    return True
+
+
+# ---------------------------------------------------------------------------------------------
+# Operators
+
+
+class SWEPTVOL_OT_compute(bpy.types.Operator):
+    """Export the selected objects and their animation and compute their swept volume"""
+
+    bl_idname = "sweptvol.compute"
+    bl_label = "Compute swept volume"
+    bl_options = {"REGISTER"}
+
+    wait: bpy.props.BoolProperty(
+        name="Wait", description="Block until the job finishes (default in background mode)",
+        default=False)
+    timeout: bpy.props.FloatProperty(
+        name="Timeout", description="Seconds to wait at most (0: no limit)", default=0.0, min=0.0)
+
+    @classmethod
+    def poll(cls, context):
+        return context.scene is not None
+
+    def execute(self, context):
+        settings = context.scene.sweptvol
+        objects = [o for o in context.selected_objects if o.type == "MESH"]
+        skipped = [o.name for o in context.selected_objects if o.type != "MESH"]
+        if not objects:
+            self.report({"ERROR"}, "select the mesh objects to sweep")
+            return {"CANCELLED"}
+        if skipped:
+            self.report({"WARNING"}, f"not meshes, skipped: {', '.join(skipped)}")
+        scene = context.scene
+        if settings.use_scene_range:
+            start, end, step = scene.frame_start, scene.frame_end, float(scene.frame_step)
+        else:
+            start, end, step = settings.frame_start, settings.frame_end, settings.frame_step
+        try:
+            frames = frame_samples(float(start), float(end), float(step))
+        except ValueError as e:
+            self.report({"ERROR"}, str(e))
+            return {"CANCELLED"}
+        p = prefs.get(context)
+        options = {"backend": p.backend}
+        if settings.accuracy == "TOLERANCE":
+            options["tolerance"] = float(settings.tolerance)
+        else:
+            options["resolution"] = int(settings.resolution)
+        try:
+            job_dir = submit(context, objects, frames, options)
+        except (ValueError, OSError, RuntimeError) as e:
+            self.report({"ERROR"}, str(e))
+            return {"CANCELLED"}
+        label = "+".join(o.name for o in objects)
+        job = {"dir": job_dir, "label": label, "sources": [o.name for o in objects],
+               "scene": scene.name, "state": "submitted", "line": "submitted", "progress": 0.0,
+               "imported": ""}
+        JOBS.append(job)
+        ok, warning = ensure_daemon(p, prefs.watch_folder(p))
+        self.report({"INFO"}, f"submitted {len(objects)} object(s), {len(frames)} frames: {job_dir}")
+        wait = self.wait if self.properties.is_property_set("wait") else bpy.app.background
+        if not wait:
+            if warning:
+                self.report({"WARNING"}, warning)
+            start_polling()
+            return {"FINISHED"}
+        if not ok:
+            self.report({"ERROR"}, f"submitted, but not waiting for it: {warning}")
+            return {"CANCELLED"}
+        if not wait_for(job, self.timeout):
+            self.report({"ERROR"}, f"the job did not finish within {self.timeout:g} s ({job['line']})")
+            return {"CANCELLED"}
+        if job["state"] == "done":
+            self.report({"INFO"}, job["line"])
+            return {"FINISHED"}
+        status = exchange.read_status(job_dir) or {}
+        self.report({"ERROR"}, f"sweptvol {job['state']}: {status.get('message', job['line'])}")
+        return {"CANCELLED"}
+
+
+class SWEPTVOL_OT_cancel(bpy.types.Operator):
+    """Ask the daemon to stop the running job(s) of this session"""
+
+    bl_idname = "sweptvol.cancel"
+    bl_label = "Cancel"
+
+    job: bpy.props.StringProperty(name="Job folder", description="Empty: every unfinished job")
+
+    def execute(self, context):
+        targets = [j for j in JOBS if j["state"] not in exchange.FINISHED
+                   and (not self.job or os.path.abspath(self.job) == j["dir"])]
+        if self.job and not targets and os.path.isdir(self.job):
+            targets = [{"dir": os.path.abspath(self.job), "label": os.path.basename(self.job)}]
+        if not targets:
+            self.report({"WARNING"}, "no unfinished sweptvol job")
+            return {"CANCELLED"}
+        for job in targets:
+            try:
+                exchange.request_cancel(job["dir"])
+            except OSError as e:
+                self.report({"ERROR"}, f"cannot cancel {job['label']}: {e}")
+                return {"CANCELLED"}
+            job["line"] = "cancelling"
+        self.report({"INFO"}, f"cancel requested for {len(targets)} job(s)")
+        return {"FINISHED"}
+
+
+class SWEPTVOL_OT_import_result(bpy.types.Operator):
+    """Import a finished job's swept volume (default: the last finished job of this session)"""
+
+    bl_idname = "sweptvol.import_result"
+    bl_label = "Import swept volume"
+    bl_options = {"REGISTER", "UNDO"}
+
+    job: bpy.props.StringProperty(name="Job folder", subtype="DIR_PATH")
+
+    def execute(self, context):
+        if self.job:
+            job_dir, label = os.path.abspath(bpy.path.abspath(self.job)).rstrip(os.sep), None
+        else:
+            job = last_job("done")
+            if job is None:
+                self.report({"ERROR"}, "no finished sweptvol job in this session: give its folder")
+                return {"CANCELLED"}
+            job_dir, label = job["dir"], job["label"]
+        try:
+            obj = import_result(job_dir, context.scene, label)
+        except (ValueError, OSError, KeyError) as e:
+            self.report({"ERROR"}, str(e))
+            return {"CANCELLED"}
+        self.report({"INFO"}, f"imported '{obj.name}'")
+        return {"FINISHED"}
+
+
+class SWEPTVOL_OT_open_depth_images(bpy.types.Operator):
+    """Open the six depth images of a finished job in the image editor"""
+
+    bl_idname = "sweptvol.open_depth_images"
+    bl_label = "Open depth images"
+
+    job: bpy.props.StringProperty(name="Job folder", subtype="DIR_PATH")
+
+    def execute(self, context):
+        job = None if self.job else last_job("done")
+        job_dir = os.path.abspath(bpy.path.abspath(self.job)) if self.job else (job or {}).get("dir")
+        if not job_dir:
+            self.report({"ERROR"}, "no finished sweptvol job in this session: give its folder")
+            return {"CANCELLED"}
+        images = depth_images(job_dir)
+        if not images:
+            self.report({"ERROR"}, f"no depth images in {job_dir}")
+            return {"CANCELLED"}
+        if not bpy.app.background and context.screen is not None:
+            try:
+                show_in_image_editor(context, images[0])
+            except (RuntimeError, IndexError) as e:
+                self.report({"WARNING"}, f"images loaded, but no image editor could be opened ({e})")
+        self.report({"INFO"}, f"loaded {len(images)} depth images ({', '.join(i.name for i in images)})")
+        return {"FINISHED"}
+
+
+class SWEPTVOL_OT_report_message(bpy.types.Operator):
+    """Show a message from a background poll as a Blender report"""
+
+    bl_idname = "sweptvol.report_message"
+    bl_label = "sweptvol message"
+    bl_options = {"INTERNAL"}
+
+    level: bpy.props.StringProperty(default="INFO")
+    message: bpy.props.StringProperty()
+
+    def execute(self, context):
+        self.report({self.level}, self.message)
+        return {"FINISHED"}
+
+
+classes = (SWEPTVOL_OT_compute, SWEPTVOL_OT_cancel, SWEPTVOL_OT_import_result,
+           SWEPTVOL_OT_open_depth_images, SWEPTVOL_OT_report_message)

@@ -1,0 +1,369 @@
+"""End-to-end test of the add-on in real Blender, with a real `sweptvol watch` daemon.
+
+Run by blender_addon/tests/run-e2e.sh:
+    BLENDER_USER_SCRIPTS=<tmp> blender -b --factory-startup --python-exit-code 1 \
+        --python blender_addon/tests/blender_e2e.py -- --zip target/sweptvol_addon.zip \
+        --binary target/release/sweptvol --work <tmp>
+
+Installs the add-on zip into the (fresh) user scripts folder, builds a scene with two animated
+objects (one parented, with keyed translation and rotation and a scale that is not 1, one with a
+rigid modifier and a constraint), presses `sweptvol.compute` (the add-on starts the daemon itself), and checks in
+Blender's world coordinates, at every sampled frame:
+  1. every vertex (and face centre) of every posed object is inside the imported mesh
+     (generalized winding number >= 0.5);
+  2. every vertex of the imported mesh is within the reported bound of the posed objects.
+Also: a deforming object is refused with its name and cause, the depth images load readable,
+a daemon error comes back as a Blender report, cancelling works, disabling the add-on stops the
+daemon it started, and with auto_start off the job is still submitted and the user told.
+"""
+
+import argparse
+import json
+import math
+import os
+import sys
+import time
+
+import bpy
+import numpy as np
+
+argv = sys.argv[sys.argv.index("--") + 1:] if "--" in sys.argv else []
+ap = argparse.ArgumentParser()
+ap.add_argument("--zip", required=True)
+ap.add_argument("--binary", required=True)
+ap.add_argument("--work", required=True)
+ap.add_argument("--resolution", type=int, default=64)
+args = ap.parse_args(argv)
+
+FRAMES = (1.0, 9.0, 0.5)  # start, end, step: sub-frames included
+
+
+def log(*a):
+    print("e2e:", *a, flush=True)
+
+
+def check(cond, message):
+    if not cond:
+        raise AssertionError(message)
+
+
+# ---------------------------------------------------------------------------------------------
+# Install and configure the add-on from the zip, in the fresh profile
+
+user_scripts = os.environ.get("BLENDER_USER_SCRIPTS", "")
+check(user_scripts and os.path.isdir(user_scripts), "run with BLENDER_USER_SCRIPTS=<empty tmp dir>")
+bpy.ops.preferences.addon_install(filepath=os.path.abspath(args.zip), overwrite=True)
+bpy.ops.preferences.addon_enable(module="sweptvol_addon")
+import sweptvol_addon  # noqa: E402
+from sweptvol_addon import exchange, operators  # noqa: E402
+
+check(os.path.abspath(sweptvol_addon.__file__).startswith(os.path.abspath(user_scripts)),
+      f"the add-on was not installed from the zip: {sweptvol_addon.__file__}")
+jobs = os.path.join(os.path.abspath(args.work), "jobs")
+os.makedirs(jobs, exist_ok=True)
+prefs = bpy.context.preferences.addons["sweptvol_addon"].preferences
+prefs.watch_folder = jobs
+prefs.sweptvol_binary = os.path.abspath(args.binary)
+prefs.auto_start = True
+prefs.backend = "cpu"
+log("add-on installed and enabled from", args.zip)
+
+# ---------------------------------------------------------------------------------------------
+# The scene
+
+for o in list(bpy.data.objects):
+    bpy.data.objects.remove(o)
+scene = bpy.context.scene
+
+
+def key(obj, frame, loc=None, rot=None):
+    if loc is not None:
+        obj.location = loc
+        obj.keyframe_insert("location", frame=frame)
+    if rot is not None:
+        obj.rotation_euler = [math.radians(a) for a in rot]
+        obj.keyframe_insert("rotation_euler", frame=frame)
+
+
+# A parent empty that moves and turns; its child (a non-uniformly scaled box) turns on its own.
+carrier = bpy.data.objects.new("Carrier", None)
+scene.collection.objects.link(carrier)
+carrier.scale = (1.2, 1.2, 1.2)
+key(carrier, 1, loc=(0, 0, 0), rot=(0, 0, 0))
+key(carrier, 9, loc=(1.0, 0.5, 0.3), rot=(0, 0, 60))
+
+bpy.ops.mesh.primitive_cube_add(size=1.0, location=(0.4, 0, 0))
+part = bpy.context.active_object
+part.name = "Part"
+part.scale = (1.5, 0.5, 0.8)
+scene.frame_set(5)  # parent while the carrier is posed: a non-identity parent inverse
+part.parent = carrier
+part.matrix_parent_inverse = carrier.matrix_world.inverted()
+key(part, 1, loc=(0.4, 0, 0), rot=(0, 0, 0))
+key(part, 9, loc=(0.6, 0.1, 0.2), rot=(90, 0, 30))
+
+# A second object with its own animation and a rigid modifier (bevel), scaled 0.7.
+bpy.ops.mesh.primitive_cylinder_add(vertices=12, radius=0.3, depth=1.0, location=(-1.5, 0, 0))
+bar = bpy.context.active_object
+bar.name = "Bar, the second"  # a comma: the CSV must quote the node name
+bar.scale = (0.7, 0.7, 0.7)
+bev = bar.modifiers.new("Bevel", "BEVEL")
+bev.width = 0.05
+key(bar, 1, loc=(-1.5, 0, 0), rot=(0, 0, 0))
+key(bar, 9, loc=(-1.0, 0.8, 0.5), rot=(45, 30, 0))
+clamp = bar.constraints.new("LIMIT_LOCATION")  # constraints count: x stops at -1.2
+clamp.use_max_x, clamp.max_x = True, -1.2
+
+# A deforming object (animated shape key): must be refused by name and cause.
+bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=1, radius=0.3, location=(0, -2, 0))
+blob = bpy.context.active_object
+blob.name = "Blob"
+blob.shape_key_add(name="Basis")
+sk = blob.shape_key_add(name="Squash")
+for v in sk.data:
+    v.co.z *= 0.3
+sk.value = 0.0
+sk.keyframe_insert("value", frame=1)
+sk.value = 1.0
+sk.keyframe_insert("value", frame=9)
+
+scene.frame_start, scene.frame_end = 1, 9
+scene.frame_set(1)
+settings = scene.sweptvol
+settings.use_scene_range = False
+settings.frame_start, settings.frame_end, settings.frame_step = FRAMES
+settings.accuracy = "RESOLUTION"
+settings.resolution = args.resolution
+
+
+def select(objs):
+    for o in bpy.context.view_layer.objects:
+        o.select_set(o in objs)
+    bpy.context.view_layer.objects.active = objs[0]
+
+
+# ---------------------------------------------------------------------------------------------
+# 1. The deforming object is refused, naming it and the cause, and nothing is submitted
+
+select([part, blob])
+try:
+    bpy.ops.sweptvol.compute(wait=True, timeout=60)
+    raise AssertionError("the deforming object was not refused")
+except RuntimeError as e:
+    msg = str(e)
+    log("refused as expected:", msg.strip())
+    check("'Blob'" in msg and "shape keys" in msg, f"the refusal should name Blob and shape keys: {msg}")
+check(not [n for n in os.listdir(jobs) if not n.startswith(".")], f"a refused job left files: {os.listdir(jobs)}")
+
+# ---------------------------------------------------------------------------------------------
+# 2. Compute: export -> job folder -> daemon (started by the add-on) -> import
+
+select([part, bar])
+t0 = time.monotonic()
+result = bpy.ops.sweptvol.compute(wait=True, timeout=400)
+check(result == {"FINISHED"}, f"compute returned {result}")
+log(f"computed and imported in {time.monotonic() - t0:.1f} s")
+job = operators.JOBS[-1]
+check(job["state"] == "done", f"job state {job['state']}")
+check(exchange.daemon_alive(jobs)[0], "the add-on did not start a daemon (no heartbeat)")
+csv_text = open(os.path.join(job["dir"], "trajectory.csv")).read()
+check('"Bar, the second"' in csv_text, "the node name with a comma is not quoted in the CSV")
+job_json = json.load(open(os.path.join(job["dir"], "job.json")))
+check(job_json.get("resolution") == args.resolution and job_json.get("backend") == "cpu", f"job.json {job_json}")
+
+coll = bpy.data.collections.get("Swept Volumes")
+check(coll is not None and coll.name in scene.collection.children, "no 'Swept Volumes' collection in the scene")
+check(len(coll.objects) == 1, f"expected one imported object, got {[o.name for o in coll.objects]}")
+swept = coll.objects[0]
+check("Part" in swept.name, f"the imported object is not named after the source: {swept.name}")
+bound = float(swept["sweptvol_hausdorff_bound"])
+check(bound > 0 and swept.get("sweptvol_triangles", 0) > 0 and swept.get("sweptvol_poses", 0) > 0,
+      f"custom properties missing: {dict(swept.items())}")
+mat = swept.data.materials[0]
+check(mat.blend_method == "BLEND" and mat.diffuse_color[3] < 1.0, "the material is not semi-transparent")
+log(f"imported '{swept.name}': {len(swept.data.polygons)} faces, bound {bound:.4g}, "
+    f"poses {swept['sweptvol_poses']}")
+
+# ---------------------------------------------------------------------------------------------
+# 3. Geometry checks in Blender world coordinates
+
+
+def world_mesh(obj):
+    """(vertices (n,3), triangles (m,3,3)) of an object's evaluated mesh in world space now."""
+    dg = bpy.context.evaluated_depsgraph_get()
+    ev = obj.evaluated_get(dg)
+    me = ev.to_mesh()
+    me.calc_loop_triangles()
+    co = np.empty(len(me.vertices) * 3)
+    me.vertices.foreach_get("co", co)
+    tri = np.empty(len(me.loop_triangles) * 3, dtype=np.int64)
+    me.loop_triangles.foreach_get("vertices", tri)
+    m = np.array(ev.matrix_world)
+    ev.to_mesh_clear()
+    co = co.reshape(-1, 3) @ m[:3, :3].T + m[:3, 3]
+    return co, co[tri.reshape(-1, 3)]
+
+
+def winding_numbers(points, tris):
+    """Generalized winding number of a closed triangle mesh at each point (Van Oosterom and
+    Strackee solid angles): about 1 inside, 0 outside."""
+    out = np.zeros(len(points))
+    for s in range(0, len(points), 256):
+        p = points[s:s + 256, None, :]
+        a, b, c = tris[None, :, 0] - p, tris[None, :, 1] - p, tris[None, :, 2] - p
+        la, lb, lc = (np.linalg.norm(x, axis=2) for x in (a, b, c))
+        det = np.einsum("ijk,ijk->ij", a, np.cross(b, c))
+        den = (la * lb * lc + np.einsum("ijk,ijk->ij", a, b) * lc
+               + np.einsum("ijk,ijk->ij", b, c) * la + np.einsum("ijk,ijk->ij", c, a) * lb)
+        out[s:s + 256] = 2.0 * np.arctan2(det, den).sum(axis=1) / (4.0 * math.pi)
+    return out
+
+
+def point_triangle_distance(points, tris):
+    """Distance from each point to the nearest triangle (exact, Ericson's regions)."""
+    best = np.full(len(points), np.inf)
+    a0, b0, c0 = tris[:, 0], tris[:, 1], tris[:, 2]
+    for s in range(0, len(points), 128):
+        p = points[s:s + 128, None, :]
+        a, b, c = a0[None], b0[None], c0[None]
+        ab, ac, ap_ = b - a, c - a, p - a
+        dot = lambda x, y: np.einsum("ijk,ijk->ij", x, y)  # noqa: E731
+        d1, d2 = dot(ab, ap_), dot(ac, ap_)
+        bp = p - b
+        d3, d4 = dot(ab, bp), dot(ac, bp)
+        cp = p - c
+        d5, d6 = dot(ab, cp), dot(ac, cp)
+        va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
+        denom = va + vb + vc
+        with np.errstate(divide="ignore", invalid="ignore"):
+            v = vb / denom
+            w = vc / denom
+            q = a + ab * v[..., None] + ac * w[..., None]  # interior
+            t_ab = d1 / (d1 - d3)
+            t_ac = d2 / (d2 - d6)
+            t_bc = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        cases = [
+            ((d1 <= 0) & (d2 <= 0), a + 0 * ab),
+            ((d3 >= 0) & (d4 <= d3), b + 0 * ab),
+            ((vc <= 0) & (d1 >= 0) & (d3 <= 0), a + ab * t_ab[..., None]),
+            ((d6 >= 0) & (d5 <= d6), c + 0 * ab),
+            ((vb <= 0) & (d2 >= 0) & (d6 <= 0), a + ac * t_ac[..., None]),
+            ((va <= 0) & ((d4 - d3) >= 0) & ((d5 - d6) >= 0), b + (c - b) * t_bc[..., None]),
+        ]
+        for cond, point in reversed(cases):  # Ericson's order: the first matching case wins
+            q = np.where(cond[..., None], point, q)
+        dist = np.linalg.norm(p - q, axis=2)
+        best[s:s + 128] = np.minimum(best[s:s + 128], np.nan_to_num(dist, nan=np.inf).min(axis=1))
+    return best
+
+
+dg = bpy.context.evaluated_depsgraph_get()
+me = swept.evaluated_get(dg).to_mesh()
+me.calc_loop_triangles()
+sv = np.empty(len(me.vertices) * 3)
+me.vertices.foreach_get("co", sv)
+st = np.empty(len(me.loop_triangles) * 3, dtype=np.int64)
+me.loop_triangles.foreach_get("vertices", st)
+mw = np.array(swept.matrix_world)
+sv = sv.reshape(-1, 3) @ mw[:3, :3].T + mw[:3, 3]
+swept_tris = sv[st.reshape(-1, 3)]
+swept.evaluated_get(dg).to_mesh_clear()
+check(len(swept_tris) > 0, "the imported mesh is empty")
+check(abs(winding_numbers(np.array([[100.0, 100.0, 100.0]]), swept_tris)[0]) < 1e-6,
+      "the imported mesh is not closed (winding number far away is not 0)")
+
+start, end, step = FRAMES
+frames = [start + k * step for k in range(int(round((end - start) / step)) + 1)]
+posed_points, posed_tris = [], []
+for f in frames:
+    scene.frame_set(int(math.floor(f)), subframe=f - math.floor(f))
+    for obj in (part, bar):
+        verts, tris = world_mesh(obj)
+        posed_points += [verts, tris.mean(axis=1)]
+        posed_tris.append(tris)
+scene.frame_set(1)
+points = np.concatenate(posed_points)
+all_tris = np.concatenate(posed_tris)
+wn = winding_numbers(points, swept_tris)
+outside = np.flatnonzero(wn < 0.5)
+log(f"inside check: {len(points)} posed points over {len(frames)} frames, winding numbers "
+    f"{wn.min():.4f}..{wn.max():.4f}")
+check(len(outside) == 0, f"{len(outside)} posed points are outside the swept volume, e.g. "
+      f"{points[outside[:3]].tolist()} (winding {wn[outside[:3]].tolist()})")
+dist = point_triangle_distance(sv, all_tris)
+log(f"bound check: {len(sv)} mesh vertices, farthest {dist.max():.5g} from the posed objects, "
+    f"bound {bound:.5g}")
+check(dist.max() <= bound + 1e-6, f"an imported vertex is {dist.max()} from the posed objects, "
+      f"beyond the reported bound {bound} (at {sv[dist.argmax()].tolist()})")
+
+# ---------------------------------------------------------------------------------------------
+# 4. Depth images open readable; import_result works on its own
+
+check(bpy.ops.sweptvol.open_depth_images() == {"FINISHED"}, "open_depth_images failed")
+imgs = [i for i in bpy.data.images if "depth-" in i.name]
+check(len(imgs) == 6, f"expected 6 depth images, got {[i.name for i in imgs]}")
+for img in imgs:
+    px = np.empty(img.size[0] * img.size[1] * img.channels, dtype=np.float32)
+    img.pixels.foreach_get(px)
+    px = px.reshape(-1, img.channels)[:, 0]
+    check(img.size[0] > 0 and np.isfinite(px).all() and px.max() > 0.05,
+          f"{img.name}: not readable in Blender (size {tuple(img.size)}, max {px.max()})")
+log("depth images readable:", ", ".join(f"{i.name} {tuple(i.size)}" for i in imgs))
+check(bpy.ops.sweptvol.import_result(job=job["dir"]) == {"FINISHED"}, "import_result failed")
+check(len(coll.objects) == 1, "re-importing should replace the earlier result")
+
+# ---------------------------------------------------------------------------------------------
+# 4b. A job the daemon refuses: its message comes back as a Blender error report
+
+settings.accuracy, settings.tolerance = "TOLERANCE", 1e-6
+try:
+    bpy.ops.sweptvol.compute(wait=True, timeout=120)
+    raise AssertionError("a tolerance of 1e-6 should fail in the daemon")
+except RuntimeError as e:
+    check("sweptvol failed" in str(e) and "larger tolerance" in str(e), f"not the daemon's message: {e}")
+    log("daemon error reported:", str(e).strip())
+check(operators.JOBS[-1]["state"] == "failed", f"state {operators.JOBS[-1]['state']}")
+settings.accuracy = "RESOLUTION"
+
+# ---------------------------------------------------------------------------------------------
+# 5. Cancel: a big job submitted without waiting, cancelled, ends `cancelled`
+
+settings.resolution = 1024
+select([part, bar])
+check(bpy.ops.sweptvol.compute(wait=False) == {"FINISHED"}, "submitting without waiting failed")
+big = operators.JOBS[-1]
+deadline = time.monotonic() + 60
+while (exchange.read_status(big["dir"]) or {}).get("state") != "running" and time.monotonic() < deadline:
+    time.sleep(0.1)
+check(bpy.ops.sweptvol.cancel() == {"FINISHED"}, "cancel failed")
+check(operators.wait_for(big, 60), "the cancelled job did not finish within 60 s")
+check(big["state"] == "cancelled", f"the cancelled job ended {big['state']}")
+log("cancel: job ended", big["state"])
+
+# ---------------------------------------------------------------------------------------------
+# 6. Disabling the add-on stops the daemon it started
+
+bpy.ops.preferences.addon_disable(module="sweptvol_addon")
+daemon = exchange.read_json(os.path.join(jobs, ".sweptvol", "daemon.json")) or {}
+check(daemon.get("state") == "stopped", f"the daemon did not stop cleanly: {daemon}")
+
+# ---------------------------------------------------------------------------------------------
+# 7. With auto_start off and no daemon, the button still submits and says no daemon runs
+
+bpy.ops.preferences.addon_enable(module="sweptvol_addon")
+prefs = bpy.context.preferences.addons["sweptvol_addon"].preferences
+prefs.watch_folder, prefs.sweptvol_binary, prefs.auto_start = jobs, os.path.abspath(args.binary), False
+settings.resolution = args.resolution
+select([part])
+before = set(os.listdir(jobs))
+try:
+    bpy.ops.sweptvol.compute(wait=True, timeout=5)
+    raise AssertionError("waiting without a daemon should fail")
+except RuntimeError as e:
+    check("no sweptvol daemon seems to be running" in str(e), f"no 'no daemon' message: {e}")
+new = [n for n in set(os.listdir(jobs)) - before if not n.startswith(".")]
+check(len(new) == 1 and os.path.isfile(os.path.join(jobs, new[0], "trajectory.csv")),
+      f"the job was not submitted without a daemon: {new}")
+check(not exchange.daemon_alive(jobs)[0], "a daemon was started although auto_start is off")
+log("auto_start off: job submitted, no daemon started, the user is told")
+log("PASS")
