@@ -710,3 +710,32 @@ fn a_second_daemon_on_the_same_folder_refuses_to_start() {
     let (code, log) = once(&dir, &[]);
     assert!(code.success(), "after the first stopped: {log}");
 }
+
+/// The control folder must not lead outside DIR, and a planted status.json link is not read
+/// through (review findings).
+#[test]
+fn control_folder_and_status_links_never_lead_outside() {
+    let (_tmp, dir) = watched();
+    let outside = tempfile::tempdir().unwrap();
+    std::os::unix::fs::symlink(outside.path(), dir.join(".sweptvol")).unwrap();
+    let (code, log) = once(&dir, &[]);
+    assert_eq!(code.code(), Some(1), "{log}");
+    assert!(
+        log.contains(".sweptvol") && log.contains("not a folder"),
+        "{log}"
+    );
+    assert_eq!(std::fs::read_dir(outside.path()).unwrap().count(), 0);
+    std::fs::remove_file(dir.join(".sweptvol")).unwrap();
+
+    // A job whose status.json is a link to a file outside: that file is neither read as the
+    // job's record nor written (the status write replaces the link).
+    let secret = outside.path().join("secret.json");
+    std::fs::write(&secret, br#"{"state": "done"}"#).unwrap();
+    let job = small_job(&dir, "linked");
+    std::os::unix::fs::symlink(&secret, job.join("status.json")).unwrap();
+    let (code, log) = once(&dir, &[]);
+    assert!(code.success(), "{log}");
+    assert_eq!(state(&job.join("status.json")), "done", "{log}");
+    assert!(job.join("swept.glb").exists(), "the job ran: {log}");
+    assert_eq!(std::fs::read(&secret).unwrap(), br#"{"state": "done"}"#);
+}

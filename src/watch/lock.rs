@@ -45,6 +45,14 @@ pub struct DaemonLock {
 /// Take the folder's lock or say who holds it.
 pub fn acquire(root: &Path) -> anyhow::Result<DaemonLock> {
     let dir = root.join(CONTROL_DIR);
+    // The control folder must be a real folder of DIR: a link would put the lock and the
+    // heartbeat outside it.
+    if fs::symlink_metadata(&dir).is_ok_and(|m| !m.is_dir()) {
+        anyhow::bail!(
+            "{} is not a folder (a symbolic link or a file): remove it, and sweptvol watch creates the folder it needs",
+            dir.display()
+        );
+    }
     fs::create_dir_all(&dir).with_context(|| format!("could not create {}", dir.display()))?;
     let lock_path = dir.join("lock");
     let file = OpenOptions::new()

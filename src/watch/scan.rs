@@ -63,7 +63,12 @@ pub fn scan(root: &Path) -> std::io::Result<Snapshot> {
 }
 
 fn record(snap: &mut Snapshot, id: JobId, root: &Path) {
-    if let Some(r) = fs::read(id.status_path(root))
+    // Only a plain file is read: a planted link would read through to outside the folder.
+    let path = id.status_path(root);
+    if !fs::symlink_metadata(&path).is_ok_and(|m| m.is_file()) {
+        return;
+    }
+    if let Some(r) = fs::read(&path)
         .ok()
         .and_then(|b| protocol::parse_recorded(&b))
     {
