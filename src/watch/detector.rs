@@ -98,7 +98,10 @@ impl Detector {
                     };
                     let id = JobId::Folder(e.name.clone());
                     if self.wanted(&id, inputs, snap) {
-                        ready.push((e.mtime_ns, id, inputs.clone()));
+                        // Arrival: the newest input, not the folder's mtime, which every
+                        // status write inside it moves.
+                        let arrival = inputs.iter().map(|f| f.mtime_ns).max();
+                        ready.push((arrival.unwrap_or(e.mtime_ns), id, inputs.clone()));
                     }
                 }
                 Role::DropGenerator(stem) => drops.entry(stem).or_default()[0] = Some(e),
@@ -344,28 +347,38 @@ mod tests {
     }
 
     /// A restart: finished jobs with unchanged inputs are skipped, jobs left running or queued
-    /// run again, a finished job whose inputs changed runs again. Oldest first.
+    /// run again, a finished job whose inputs changed runs again. Oldest inputs first.
     #[test]
     fn restart_skips_finished_and_reruns_interrupted() {
         let mut d = Detector::new(SETTLE);
         let mut s = snap(&[]);
-        for (name, mtime) in [("done", 1), ("crashed", 4), ("queued", 3), ("changed", 2)] {
-            s = with_folder(s, name, mtime, folder_inputs());
+        // Inputs written in the order done, changed, queued, crashed; the folders' own mtimes
+        // (moved by status writes) say otherwise and must not decide.
+        let written = |mtime: i64| -> Fingerprint {
+            let mut f = folder_inputs();
+            f.iter_mut().for_each(|x| x.mtime_ns = mtime);
+            f
+        };
+        for (name, mtime, folder_mtime) in [
+            ("done", 1, 9),
+            ("crashed", 4, 1),
+            ("queued", 3, 2),
+            ("changed", 2, 8),
+        ] {
+            s = with_folder(s, name, folder_mtime, written(mtime));
         }
         let rec = |state, inputs| Recorded { state, inputs };
-        let mut old = folder_inputs();
+        let mut old = written(2);
         old[1].size = 81;
-        s.recorded.insert(
-            JobId::Folder("done".into()),
-            rec(State::Done, folder_inputs()),
-        );
+        s.recorded
+            .insert(JobId::Folder("done".into()), rec(State::Done, written(1)));
         s.recorded.insert(
             JobId::Folder("crashed".into()),
-            rec(State::Running, folder_inputs()),
+            rec(State::Running, written(4)),
         );
         s.recorded.insert(
             JobId::Folder("queued".into()),
-            rec(State::Queued, folder_inputs()),
+            rec(State::Queued, written(3)),
         );
         s.recorded
             .insert(JobId::Folder("changed".into()), rec(State::Failed, old));
