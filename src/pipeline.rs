@@ -18,6 +18,9 @@ use crate::simplify::{simplify_until, SimplifyOptions, SimplifyStats};
 use crate::sweep::{cpu, gpu::Gpu, Cancelled, Observer};
 use crate::voxel::Classifier;
 
+/// What the report's `hausdorff_bound` covers (paper, section 4).
+const HAUSDORFF_SCOPE: &str = "wherever the swept volume's concavities are visible along some axis; concavities hidden from all six directions are filled and can lie farther: measure with sweptvol verify";
+
 /// Smallest piece the simplifier's adaptive region tests refine to before rejecting, voxels.
 const MIN_RADIUS_VOXELS: f64 = 0.05;
 /// Kept between the swept region's band and the limit δ - √3h/2, voxels.
@@ -141,6 +144,8 @@ pub struct MeshReport {
     /// Guaranteed one-sided Hausdorff distance from the mesh to the swept volume wherever its
     /// concavities are visible along some axis: ε + √3h/2 + δ + 2ρ + output rounding.
     pub hausdorff_bound: f64,
+    /// Where `hausdorff_bound` holds, in words (it is not a global bound).
+    pub hausdorff_bound_scope: &'static str,
     /// Every point of the mesh is at least this far outside the swept volume:
     /// δ - √3h/2 - ε - output rounding.
     pub clearance: f64,
@@ -402,6 +407,7 @@ pub fn execute(
             + input.params.delta
             + 2.0 * input.rounding * h
             + output_rounding,
+        hausdorff_bound_scope: HAUSDORFF_SCOPE,
         clearance: input.params.delta - eps_voxel - input.params.epsilon - output_rounding,
         output_rounding,
     };
