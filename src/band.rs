@@ -231,67 +231,85 @@ impl<'c> Proximity<'c> {
         false
     }
 
-    /// Whether every point of triangle `t` is within `limit` (< REACH) of ∂W. Adaptive: a piece
-    /// with centroid c and circumradius R about c passes when dist(c) + R ≤ limit (distance is
-    /// 1-Lipschitz) or when it lies on ∂W ([`Self::on_boundary_plane`]); it fails when dist(c) > limit (c itself is out) or R < `r_min` (not shown).
-    /// Pieces split into four by their edge midpoints. Sound: may reject, never wrongly accepts.
-    pub fn triangle_within(&mut self, t: [DVec3; 3], limit: f64, r_min: f64) -> bool {
-        debug_assert!(limit < REACH && r_min > 0.0);
-        let mut stack = vec![t];
+    /// Adaptive refinement shared by the region tests. Each piece (centroid c, circumradius R
+    /// about c, so the piece lies in the ball B(c, R)) gets `judge(piece, R, dist(c), c inside
+    /// W)`: pass, fail, or refine. A piece to refine with R < `r_min`, or more than
+    /// [`NODE_BUDGET`] pieces in all, fails the region (not shown: always sound).
+    fn refine<const N: usize>(
+        &mut self,
+        start: [DVec3; N],
+        r_min: f64,
+        mut judge: impl FnMut(&Self, &[DVec3; N], f64, f64, bool) -> Verdict,
+        split: impl Fn(&[DVec3; N], &mut Vec<[DVec3; N]>),
+    ) -> bool {
+        let mut stack = vec![start];
         let mut visited = 0;
-        while let Some(t) = stack.pop() {
+        while let Some(piece) = stack.pop() {
             visited += 1;
             if visited > NODE_BUDGET {
                 return false;
             }
-            let c = (t[0] + t[1] + t[2]) / 3.0;
-            let r = t.iter().map(|x| (*x - c).length()).fold(0.0, f64::max);
-            let (d, _) = self.distance(c);
-            if d + r <= limit || (r > limit && self.on_boundary_plane(&t)) {
-                continue;
+            let c = piece.iter().sum::<DVec3>() / N as f64;
+            let r = piece.iter().map(|x| (*x - c).length()).fold(0.0, f64::max);
+            let (d, inside) = self.distance(c);
+            match judge(self, &piece, r, d, inside) {
+                Verdict::Pass => {}
+                Verdict::Fail => return false,
+                Verdict::Refine if r < r_min => return false,
+                Verdict::Refine => split(&piece, &mut stack),
             }
-            if d > limit || r < r_min {
-                return false;
+        }
+        true
+    }
+
+    /// Whether every point of triangle `t` is within `limit` (< REACH) of ∂W. A piece passes
+    /// when dist(c) + R ≤ limit (distance is 1-Lipschitz) or when it lies on ∂W
+    /// ([`Self::on_boundary_plane`]); it fails when dist(c) > limit (c itself is out). Pieces
+    /// split into four at their edge midpoints. Sound: may reject, never wrongly accepts.
+    pub fn triangle_within(&mut self, t: [DVec3; 3], limit: f64, r_min: f64) -> bool {
+        debug_assert!(limit < REACH && r_min > 0.0);
+        let judge = |me: &Self, piece: &[DVec3; 3], r: f64, d: f64, _inside: bool| {
+            if d + r <= limit || (r > limit && me.on_boundary_plane(piece)) {
+                Verdict::Pass
+            } else if d > limit {
+                Verdict::Fail
+            } else {
+                Verdict::Refine
             }
+        };
+        let split = |t: &[DVec3; 3], out: &mut Vec<[DVec3; 3]>| {
             let m = [
                 (t[0] + t[1]) / 2.0,
                 (t[1] + t[2]) / 2.0,
                 (t[2] + t[0]) / 2.0,
             ];
-            stack.extend([
+            out.extend([
                 [t[0], m[0], m[2]],
                 [m[0], t[1], m[1]],
                 [m[2], m[1], t[2]],
                 [m[0], m[1], m[2]],
             ]);
-        }
-        true
+        };
+        self.refine(t, r_min, judge, split)
     }
 
     /// Whether tetrahedron `t` misses every point inside W deeper than `limit` (< REACH) below
-    /// ∂W. A piece (centroid c, circumradius R about c) passes when dist(c) + R ≤ limit, or when
-    /// c lies outside W with dist(c) ≥ R (the open ball then holds no point of W), or when it is flat
-    /// on ∂W; it fails when
-    /// c is inside W deeper than `limit`, or R < `r_min`. Pieces split in two at the midpoint of
-    /// their longest edge. Sound: may reject, never wrongly accepts.
+    /// ∂W. A piece passes when dist(c) + R ≤ limit, when c lies outside W with dist(c) ≥ R (the
+    /// open ball then holds no point of W), or when it is flat on ∂W; it fails when c is inside
+    /// W deeper than `limit`. Pieces split in two at the midpoint of their longest edge. Sound:
+    /// may reject, never wrongly accepts.
     pub fn tetrahedron_shallow(&mut self, t: [DVec3; 4], limit: f64, r_min: f64) -> bool {
         debug_assert!(limit < REACH && r_min > 0.0);
-        let mut stack = vec![t];
-        let mut visited = 0;
-        while let Some(t) = stack.pop() {
-            visited += 1;
-            if visited > NODE_BUDGET {
-                return false;
+        let judge = |me: &Self, piece: &[DVec3; 4], r: f64, d: f64, inside: bool| {
+            if d + r <= limit || (!inside && d >= r) || (r > limit && me.on_boundary_plane(piece)) {
+                Verdict::Pass
+            } else if inside && d > limit {
+                Verdict::Fail
+            } else {
+                Verdict::Refine
             }
-            let c = (t[0] + t[1] + t[2] + t[3]) / 4.0;
-            let r = t.iter().map(|x| (*x - c).length()).fold(0.0, f64::max);
-            let (d, inside) = self.distance(c);
-            if d + r <= limit || (!inside && d >= r) || (r > limit && self.on_boundary_plane(&t)) {
-                continue;
-            }
-            if (inside && d > limit) || r < r_min {
-                return false;
-            }
+        };
+        let split = |t: &[DVec3; 4], out: &mut Vec<[DVec3; 4]>| {
             let (mut a, mut b, mut longest) = (0, 1, -1.0);
             for i in 0..4 {
                 for j in i + 1..4 {
@@ -302,13 +320,20 @@ impl<'c> Proximity<'c> {
                 }
             }
             let m = (t[a] + t[b]) / 2.0;
-            let (mut left, mut right) = (t, t);
+            let (mut left, mut right) = (*t, *t);
             left[a] = m;
             right[b] = m;
-            stack.extend([left, right]);
-        }
-        true
+            out.extend([left, right]);
+        };
+        self.refine(t, r_min, judge, split)
     }
+}
+
+/// What [`Proximity::refine`] does with a piece.
+enum Verdict {
+    Pass,
+    Fail,
+    Refine,
 }
 
 #[cfg(test)]

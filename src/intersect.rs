@@ -280,8 +280,8 @@ impl TriangleHash {
     }
 
     fn cell_range(&self, t: &[DVec3]) -> ([i64; 3], [i64; 3]) {
-        let lo = t.iter().fold(DVec3::INFINITY, |m, p| m.min(*p)) - DVec3::splat(TOUCH);
-        let hi = t.iter().fold(DVec3::NEG_INFINITY, |m, p| m.max(*p)) + DVec3::splat(TOUCH);
+        let (lo, hi) = bounds(t);
+        let (lo, hi) = (lo - DVec3::splat(TOUCH), hi + DVec3::splat(TOUCH));
         let f = |v: DVec3| {
             let c = (v / self.cell).floor();
             [c.x as i64, c.y as i64, c.z as i64]
@@ -310,7 +310,7 @@ impl TriangleHash {
                     );
                     if ids.len() >= PRUNE_AT {
                         ids.retain(|&u| {
-                            current(u).is_some_and(|p| boxes_meet(&p, &[clo, chi, chi]))
+                            current(u).is_some_and(|p| bounds_meet(bounds(&p), (clo, chi)))
                         });
                     }
                     if !ids.contains(&id) {
@@ -340,11 +340,23 @@ impl TriangleHash {
     }
 }
 
-/// Whether the boxes of two triangles come within [`TOUCH`] of each other.
-pub fn boxes_meet(s: &[DVec3; 3], t: &[DVec3; 3]) -> bool {
-    let (slo, shi) = (s[0].min(s[1]).min(s[2]), s[0].max(s[1]).max(s[2]));
-    let (tlo, thi) = (t[0].min(t[1]).min(t[2]), t[0].max(t[1]).max(t[2]));
+/// Bounding box (lo, hi) of `points`.
+pub fn bounds(points: &[DVec3]) -> (DVec3, DVec3) {
+    points
+        .iter()
+        .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), p| {
+            (lo.min(*p), hi.max(*p))
+        })
+}
+
+/// Whether two boxes (lo, hi) come within [`TOUCH`] of each other.
+pub fn bounds_meet((slo, shi): (DVec3, DVec3), (tlo, thi): (DVec3, DVec3)) -> bool {
     (slo - thi).max_element() <= TOUCH && (tlo - shi).max_element() <= TOUCH
+}
+
+/// Whether the bounding boxes of two point sets come within [`TOUCH`] of each other.
+pub fn boxes_meet(s: &[DVec3], t: &[DVec3]) -> bool {
+    bounds_meet(bounds(s), bounds(t))
 }
 
 #[cfg(test)]

@@ -24,7 +24,7 @@ use rayon::prelude::*;
 use glam::{DMat3, DVec3};
 
 use crate::band::{self, Proximity};
-use crate::intersect::{boxes_meet, conflict, TriangleHash};
+use crate::intersect::{bounds, bounds_meet, boxes_meet, conflict, TriangleHash};
 use crate::mesh::Mesh;
 use crate::voxel::Classifier;
 
@@ -502,11 +502,7 @@ impl State {
         let new: Vec<([u32; 3], [DVec3; 3])> =
             changed.iter().map(|(t, q)| (renamed(*t), *q)).collect();
         let fan: Vec<DVec3> = new.iter().flat_map(|(_, q)| *q).collect();
-        let (lo, hi) = fan
-            .iter()
-            .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), p| {
-                (lo.min(*p), hi.max(*p))
-            });
+        let fan_box = bounds(&fan);
         let mut near = Vec::new();
         self.hash.near(&fan, &mut near);
         let others: Vec<([u32; 3], [DVec3; 3])> = near
@@ -516,7 +512,7 @@ impl State {
                 let ui = self.tris[u as usize];
                 (ui, ui.map(|x| self.pos[x as usize]))
             })
-            .filter(|(_, up)| boxes_meet(&[lo, hi, hi], up))
+            .filter(|(_, up)| bounds_meet(fan_box, bounds(up)))
             .collect();
         for (k, (ti, q)) in new.iter().enumerate() {
             let mut pairs = others.iter().chain(&new[k + 1..]).copied();
