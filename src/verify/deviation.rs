@@ -11,9 +11,9 @@
 //! H <= D <= H + 2·spacing (H the true one-sided Hausdorff distance to the posed surfaces), and
 //! `lower` <= H.
 //!
-//! dist(c) comes from a depth-first branch-and-bound search over (pose cluster, generator BVH node) pairs with
-//! lower bounds |c - P_ref(centre)| - σ_max·ρ - spread, ending in exact point-triangle
-//! distances to posed triangles. It stops early once a candidate is at most the threshold.
+//! dist(c) comes from [`nearest`]'s branch and bound over (pose cluster, generator BVH node)
+//! pairs in the part's frame, ending in exact point-triangle distances to posed triangles. It
+//! stops early once a candidate is at most the threshold.
 
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Mutex;
@@ -23,6 +23,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use super::geom;
+use super::nearest::{self, Frames, Hit, Scratch};
 use super::poses::PosedPart;
 use super::Progress;
 
@@ -60,102 +61,6 @@ pub struct Deviation {
     pub place: Option<DeviationPlace>,
 }
 
-/// Nearest posed triangle found by [`nearest`].
-#[derive(Clone, Copy, Debug)]
-struct Hit {
-    dist: f64,
-    part: u32,
-    tri: u32,
-    pose: u32,
-}
-
-struct Item {
-    lb: f64,
-    part: u32,
-    node: u32,
-    cluster: u32,
-}
-/// A posed triangle within `threshold` of `p` if there is one (then `.1` is meaningless);
-/// otherwise the nearest posed triangle up to `tol` (its distance is at most the exact one plus
-/// `tol`) and a proven lower bound of the exact distance (`.1`, at least `threshold`).
-fn nearest(parts: &[PosedPart], p: DVec3, threshold: f64, tol: f64) -> (Hit, f64) {
-    let mut best = Hit {
-        dist: f64::INFINITY,
-        part: 0,
-        tri: 0,
-        pose: 0,
-    };
-    // Depth first, nearer child first: reaches a good candidate in about one root-to-leaf walk
-    // (what the threshold needs), then prunes by the lower bounds until the result is exact.
-    let mut stack: Vec<Item> = Vec::new();
-    let bound = |part: &PosedPart, node: u32, cluster: u32| -> f64 {
-        let n = &part.bvh.nodes[node as usize];
-        let c = &part.tree.clusters[cluster as usize];
-        let pose = &part.poses[c.reference as usize];
-        let q = pose.matrix.transform_point3(n.centre);
-        let r = pose.sigma_max * n.radius + c.spread(part.tree.origin, n.centre, n.radius);
-        ((p - q).length() - r).max(0.0)
-    };
-    for (i, part) in parts.iter().enumerate() {
-        stack.push(Item {
-            lb: bound(part, 0, 0),
-            part: i as u32,
-            node: 0,
-            cluster: 0,
-        });
-    }
-    while let Some(it) = stack.pop() {
-        if best.dist <= threshold {
-            break;
-        }
-        // Items pruned here have lb >= max(threshold, best - tol) >= the lower bound returned.
-        if it.lb >= best.dist || it.lb >= threshold.max(best.dist - tol) {
-            continue;
-        }
-        let part = &parts[it.part as usize];
-        let n = &part.bvh.nodes[it.node as usize];
-        let c = &part.tree.clusters[it.cluster as usize];
-        if n.count > 0 && c.is_leaf() {
-            let pose_index = part.tree.perm[c.lo as usize];
-            let m = part.poses[pose_index as usize].matrix;
-            for &t in part.bvh.leaf_tris(n) {
-                let [a, b, cc] = part.bvh.tris[t as usize].map(|v| m.transform_point3(v));
-                let d = geom::dist_triangle(p, a, b, cc);
-                if d < best.dist {
-                    best = Hit {
-                        dist: d,
-                        part: it.part,
-                        tri: t,
-                        pose: pose_index,
-                    };
-                }
-            }
-            continue;
-        }
-        let own = part.poses[c.reference as usize].sigma_max * n.radius;
-        let spread = c.spread(part.tree.origin, n.centre, n.radius);
-        let children = if n.count == 0 && (c.is_leaf() || spread <= own) {
-            [(n.left, it.cluster), (n.right, it.cluster)]
-        } else {
-            [(it.node, c.left), (it.node, c.right)]
-        };
-        let [x, y] = children.map(|(node, cluster)| Item {
-            lb: bound(part, node, cluster).max(it.lb),
-            part: it.part,
-            node,
-            cluster,
-        });
-        let (near, far) = if x.lb <= y.lb { (x, y) } else { (y, x) };
-        for child in [far, near] {
-            if child.lb < best.dist {
-                stack.push(child);
-            }
-        }
-    }
-    let lower = threshold.max(best.dist - tol).max(0.0);
-    (best, lower)
-}
-
 /// A sample that sets the bound: centre, mesh triangle, distance, radius, nearest posed triangle.
 type Found = (DVec3, u32, f64, f64, Hit);
 
@@ -176,45 +81,53 @@ pub fn check(
     // Seed the known maximum with exact distances at every mesh triangle's centroid: pieces
     // stop as soon as their bound is below it, so a maximum known early (rather than found
     // piece by piece) spares most of the refinement.
+    let frames: Vec<Frames> = parts.iter().map(Frames::new).collect();
+    let search = |scratch: &mut Scratch, p: DVec3, threshold: f64| {
+        nearest::nearest(parts, &frames, scratch, p, threshold, spacing)
+    };
     let seed = tris
         .par_iter()
-        .map(|t| nearest(parts, geom::ball(t).0, f64::NEG_INFINITY, spacing).1)
+        .map_init(Scratch::default, |s, t| {
+            search(s, geom::ball(t).0, f64::NEG_INFINITY).1
+        })
         .reduce(|| 0.0, f64::max);
     lower.store(seed.to_bits(), Ordering::Relaxed);
-    tris.par_iter().enumerate().for_each(|(ti, tri)| {
-        let mut stack = vec![*tri];
-        while let Some(piece) = stack.pop() {
-            samples.fetch_add(1, Ordering::Relaxed);
-            let (c, r) = geom::ball(&piece);
-            let known = f64::from_bits(lower.load(Ordering::Relaxed));
-            let (hit, at_least) = nearest(parts, c, known - r, spacing);
-            if hit.dist + r <= known {
-                continue;
-            }
-            lower.fetch_max(at_least.to_bits(), Ordering::Relaxed);
-            // A finest piece bounds its points by dist + r; a coarser one only proves that the
-            // maximum is at least `at_least` (and splits).
-            let terminal = r <= spacing;
-            let (value, radius) = if terminal {
-                (hit.dist + r, r)
-            } else {
-                (at_least, 0.0)
-            };
-            {
-                let mut b = best.lock().expect("no panics while held");
-                if value > b.0 {
-                    *b = (value, Some((c, ti as u32, hit.dist, radius, hit)));
+    tris.par_iter()
+        .enumerate()
+        .for_each_init(Scratch::default, |scratch, (ti, tri)| {
+            let mut stack = vec![*tri];
+            while let Some(piece) = stack.pop() {
+                samples.fetch_add(1, Ordering::Relaxed);
+                let (c, r) = geom::ball(&piece);
+                let known = f64::from_bits(lower.load(Ordering::Relaxed));
+                let (hit, at_least) = search(scratch, c, known - r);
+                if hit.dist + r <= known {
+                    continue;
+                }
+                lower.fetch_max(at_least.to_bits(), Ordering::Relaxed);
+                // A finest piece bounds its points by dist + r; a coarser one only proves that the
+                // maximum is at least `at_least` (and splits).
+                let terminal = r <= spacing;
+                let (value, radius) = if terminal {
+                    (hit.dist + r, r)
+                } else {
+                    (at_least, 0.0)
+                };
+                {
+                    let mut b = best.lock().expect("no panics while held");
+                    if value > b.0 {
+                        *b = (value, Some((c, ti as u32, hit.dist, radius, hit)));
+                    }
+                }
+                if !terminal {
+                    stack.extend(geom::split4(&piece));
                 }
             }
-            if !terminal {
-                stack.extend(geom::split4(&piece));
+            let d = done.fetch_add(1, Ordering::Relaxed) + 1;
+            if d % 64 == 0 || d == total {
+                progress.advance(d, total);
             }
-        }
-        let d = done.fetch_add(1, Ordering::Relaxed) + 1;
-        if d % 64 == 0 || d == total {
-            progress.advance(d, total);
-        }
-    });
+        });
     let lower = f64::from_bits(lower.into_inner());
     let (bound, place) = best.into_inner().expect("no panics while held");
     let place = place.map(|(c, ti, dist, r, hit)| {

@@ -11,6 +11,7 @@ pub mod containment;
 pub mod deviation;
 pub mod geom;
 pub mod health;
+pub mod nearest;
 pub mod poses;
 pub mod winding;
 
