@@ -16,7 +16,7 @@
 //! triangle count stops early. Units: grid units (one voxel edge = 1).
 
 use std::cmp::Ordering;
-use std::collections::BinaryHeap;
+use std::collections::{BinaryHeap, HashMap};
 use std::sync::Mutex;
 
 use rayon::prelude::*;
@@ -144,9 +144,18 @@ struct Candidate {
     ver: (u32, u32),
 }
 
+impl Candidate {
+    /// Tie-break among equal costs: a hash of the edge, so that equal-cost collapses (flat
+    /// regions) spread over the surface instead of sweeping it in index order, and the order
+    /// does not depend on the heap's history.
+    fn scatter(&self) -> u64 {
+        ((self.a as u64) << 32 | self.b as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
+    }
+}
+
 impl PartialEq for Candidate {
     fn eq(&self, o: &Self) -> bool {
-        self.cost == o.cost
+        self.cmp(o) == Ordering::Equal
     }
 }
 impl Eq for Candidate {}
@@ -156,9 +165,11 @@ impl PartialOrd for Candidate {
     }
 }
 impl Ord for Candidate {
-    // Min-heap on cost.
+    // Min-heap on cost; ties by edge, so the order does not depend on the heap's history.
     fn cmp(&self, o: &Self) -> Ordering {
-        o.cost.total_cmp(&self.cost)
+        o.cost
+            .total_cmp(&self.cost)
+            .then_with(|| o.scatter().cmp(&self.scatter()))
     }
 }
 
@@ -257,6 +268,9 @@ pub fn simplify_until(
     let mut batch_no = 0u32;
     let mut batch: Vec<Candidate> = Vec::with_capacity(BATCH);
     let mut deferred: Vec<Candidate> = Vec::new();
+    // Rejected edges by endpoint (each under both), retried once a collapse changes the
+    // triangles around them.
+    let mut parked: HashMap<u32, Vec<u32>> = HashMap::new();
     'batches: while s.live_tris > opts.target_triangles {
         if stop() {
             return None;
@@ -293,7 +307,7 @@ pub fn simplify_until(
             })
             .collect();
         let mut batch_moved = Vec::new();
-        for outcome in checked {
+        for (c, outcome) in batch.iter().zip(checked) {
             if s.live_tris <= opts.target_triangles {
                 break 'batches;
             }
@@ -301,26 +315,34 @@ pub fn simplify_until(
                 Ok(plan) => plan,
                 Err(why) => {
                     s.stats.count(why);
+                    s.park(&mut parked, c.a, c.b);
                     continue;
                 }
             };
             let a = plan.a;
             if s.commit(plan, &mut batch_moved) {
-                // Edges whose triangles changed: around a, and around its neighbours (their
-                // stars now hold moved triangles, so earlier rejections may no longer hold).
-                let ring = s.neighbours(a);
-                let mut edges: Vec<(usize, usize)> = Vec::new();
-                for &nb in &ring {
-                    edges.push((a.min(nb), a.max(nb)));
-                    for x in s.neighbours(nb) {
-                        edges.push((nb.min(x), nb.max(x)));
+                // Edges at a have a new cost: fresh candidates (their old entries are stale by
+                // a's version). Edges at a's neighbours keep their cost and their heap entries,
+                // but their stars now hold moved triangles, so those rejected earlier may pass
+                // now: they come back.
+                parked.remove(&(a as u32));
+                for nb in s.neighbours(a) {
+                    heap.push(s.candidate(a as u32, nb as u32));
+                    let Some(others) = parked.remove(&(nb as u32)) else {
+                        continue;
+                    };
+                    let still = s.neighbours(nb);
+                    for x in others {
+                        if let Some(list) = parked.get_mut(&x) {
+                            list.retain(|&y| y != nb as u32);
+                        }
+                        if x as usize != a && still.binary_search(&(x as usize)).is_ok() {
+                            heap.push(s.candidate(nb as u32, x));
+                        }
                     }
                 }
-                edges.sort_unstable();
-                edges.dedup();
-                for (x, y) in edges {
-                    heap.push(s.candidate(x as u32, y as u32));
-                }
+            } else {
+                s.park(&mut parked, c.a, c.b);
             }
         }
         heap.extend(deferred.drain(..));
@@ -329,6 +351,16 @@ pub fn simplify_until(
 }
 
 impl State {
+    /// Parks rejected edge (a, b) under both endpoints, once.
+    fn park(&self, parked: &mut HashMap<u32, Vec<u32>>, a: u32, b: u32) {
+        for (x, y) in [(a, b), (b, a)] {
+            let list = parked.entry(x).or_default();
+            if !list.contains(&y) {
+                list.push(y);
+            }
+        }
+    }
+
     fn candidate(&self, a: u32, b: u32) -> Candidate {
         Candidate {
             cost: self.best_target(a, b).0,
