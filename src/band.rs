@@ -109,6 +109,8 @@ const DOMINATORS: [u128; 125] = {
 pub struct Proximity<'c> {
     cls: &'c Classifier,
     opposite: HashMap<u64, u128, BuildHasherDefault<KeyHasher>>,
+    /// Entries kept before the memo starts over ([`MEMO_CAP`]; smaller in tests).
+    cap: usize,
     /// The last entry looked up (key, entry); key u64::MAX: none.
     last: (u64, u128),
 }
@@ -118,6 +120,11 @@ const INSIDE_BIT: u32 = 127;
 /// Memo entry bits of the other-class voxels in the block.
 const OPPOSITE_BITS: u128 = (1 << 125) - 1;
 
+/// Memo entries kept per [`Proximity`] (about 66 bytes each with the table's slack); a full
+/// memo starts over, so memory stays bounded on any mesh (the memo is a cache: answers do not
+/// depend on it).
+const MEMO_CAP: usize = 1 << 21;
+
 /// Nodes one region test may visit before it gives up (and rejects, which is always sound).
 const NODE_BUDGET: usize = 4096;
 
@@ -126,11 +133,12 @@ impl<'c> Proximity<'c> {
         Proximity {
             cls,
             opposite: HashMap::default(),
+            cap: MEMO_CAP,
             last: (u64::MAX, 0),
         }
     }
 
-    /// Voxels visited so far (memory: about 40 bytes each).
+    /// Voxels in the memo (at most [`MEMO_CAP`]).
     pub fn memo_len(&self) -> usize {
         self.opposite.len()
     }
@@ -143,26 +151,39 @@ impl<'c> Proximity<'c> {
         if self.last.0 == key {
             return self.last.1; // refinement queries the same voxel many times in a row
         }
-        let cls = self.cls;
-        let entry = *self.opposite.entry(key).or_insert_with(|| {
-            let here = cls.inside(v[0], v[1], v[2]);
-            let mut m = 0u128;
-            for (n, o) in BLOCK.iter().enumerate() {
-                let [di, dj, dk] = o.map(|x| x as isize - 2);
-                if cls.inside(v[0] + di, v[1] + dj, v[2] + dk) != here {
-                    m |= 1 << n;
+        let entry = match self.opposite.get(&key) {
+            Some(&e) => e,
+            None => {
+                let e = self.compute(v);
+                if self.opposite.len() >= self.cap {
+                    self.opposite.clear();
                 }
+                self.opposite.insert(key, e);
+                e
             }
-            let mut kept = 0u128;
-            for (n, dominators) in DOMINATORS.iter().enumerate() {
-                if m >> n & 1 == 1 && m & dominators == 0 {
-                    kept |= 1 << n;
-                }
-            }
-            kept | (here as u128) << INSIDE_BIT
-        });
+        };
         self.last = (key, entry);
         entry
+    }
+
+    /// The memo entry of voxel `v`, computed from the classifier.
+    fn compute(&self, v: [isize; 3]) -> u128 {
+        let cls = self.cls;
+        let here = cls.inside(v[0], v[1], v[2]);
+        let mut m = 0u128;
+        for (n, o) in BLOCK.iter().enumerate() {
+            let [di, dj, dk] = o.map(|x| x as isize - 2);
+            if cls.inside(v[0] + di, v[1] + dj, v[2] + dk) != here {
+                m |= 1 << n;
+            }
+        }
+        let mut kept = 0u128;
+        for (n, dominators) in DOMINATORS.iter().enumerate() {
+            if m >> n & 1 == 1 && m & dominators == 0 {
+                kept |= 1 << n;
+            }
+        }
+        kept | (here as u128) << INSIDE_BIT
     }
 
     /// dist(p, ∂W) when it is below [`REACH`], else REACH; and whether p's voxel is inside W.
@@ -405,6 +426,10 @@ mod tests {
         for seed in 0..4 {
             let cls = random_at([14, 12, 13], seed);
             let mut prox = Proximity::new(&cls);
+            // Odd seeds with a tiny memo that starts over every few voxels.
+            if seed % 2 == 1 {
+                prox.cap = 7;
+            }
             let mut rnd = lcg(seed + 100);
             let mut near = 0;
             for _ in 0..20_000 {
@@ -419,6 +444,7 @@ mod tests {
                     }
                     _ => assert_eq!(d, REACH, "{p}: {d}, brute force finds nothing nearer"),
                 }
+                assert!(prox.memo_len() <= prox.cap);
             }
             assert!(
                 near > 5000,

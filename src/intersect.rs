@@ -159,15 +159,22 @@ pub fn triangle_distance(s: [DVec3; 3], t: [DVec3; 3]) -> f64 {
 /// folded flat onto itself; a pair with one common vertex whose far edges cross the other
 /// triangle, or, when coplanar, whose corners at that vertex overlap; the same triangle twice.
 pub fn conflict(si: [u32; 3], s: [DVec3; 3], ti: [u32; 3], t: [DVec3; 3]) -> bool {
-    let common: Vec<(usize, usize)> = (0..3)
-        .flat_map(|i| (0..3).map(move |j| (i, j)))
-        .filter(|&(i, j)| si[i] == ti[j])
-        .collect();
+    // Shared vertices as (index in s, index in t); a triangle's ids are distinct, so at most 3.
+    let mut common = [(0usize, 0usize); 3];
+    let mut shared = 0;
+    for i in 0..3 {
+        for j in 0..3 {
+            if si[i] == ti[j] && shared < 3 {
+                common[shared] = (i, j);
+                shared += 1;
+            }
+        }
+    }
     let (ns, nt) = (
         (s[1] - s[0]).cross(s[2] - s[0]).normalize_or_zero(),
         (t[1] - t[0]).cross(t[2] - t[0]).normalize_or_zero(),
     );
-    match common.len() {
+    match shared {
         0 => {
             if apart(s, ns, &t) || apart(t, nt, &s) {
                 false

@@ -362,8 +362,18 @@ pub fn execute(
             input.params.delta
         );
     }
+    // The start mesh's memory goes to the simplifier; what the report and --keep-start-mesh
+    // need of it is taken first.
+    let triangles_start = start.triangles.len() as u64;
+    let start_glb = if opts.keep_start_mesh {
+        let name = format!("{} voxel boundary", output_stem(opts)?);
+        let extras = serde_json::json!({"sweptvol_version": env!("CARGO_PKG_VERSION"), "triangles": triangles_start});
+        Some(gltf_out::glb_bytes(&start, &input.grid, &name, extras)?)
+    } else {
+        None
+    };
     let (mesh, simplify_stats) =
-        simplify_until(&start, &classifier, band, &|| observer.cancelled()).ok_or(Cancelled)?;
+        simplify_until(start, &classifier, band, &|| observer.cancelled()).ok_or(Cancelled)?;
     let (_, output_rounding) = gltf_out::world_positions(&mesh, &input.grid);
     // The mesh keeps a clearance of δ - √3h/2 - ε (about 0.71h at the defaults) from the swept
     // volume; f32 output must not spend a noticeable part of it.
@@ -396,7 +406,7 @@ pub fn execute(
     let eps_voxel = half_diag * h;
     let mesh_report = MeshReport {
         file: job.outputs[0].clone(),
-        triangles_start: start.triangles.len() as u64,
+        triangles_start,
         triangles_final: mesh.triangles.len() as u64,
         vertices: mesh.positions.len() as u64,
         simplified: true,
@@ -426,10 +436,7 @@ pub fn execute(
         extras,
     )?;
     staged.write(&job.outputs[0], &glb)?;
-    if opts.keep_start_mesh {
-        let name = format!("{stem} voxel boundary");
-        let extras = serde_json::json!({"sweptvol_version": env!("CARGO_PKG_VERSION"), "triangles": start.triangles.len()});
-        let start_glb = gltf_out::glb_bytes(&start, &input.grid, &name, extras)?;
+    if let Some(start_glb) = start_glb {
         staged.write(&job.outputs[START_MESH], &start_glb)?;
     }
     let t_write = Instant::now();

@@ -184,6 +184,9 @@ struct Plan {
     changed: Vec<(u32, [DVec3; 3])>,
     /// The same with their vertex ids after the collapse.
     new: Vec<([u32; 3], [DVec3; 3])>,
+    /// a's neighbours after the collapse, with the cost of collapsing the edge to each (read
+    /// before the batch: no other collapse of the batch moves them or a).
+    fresh: Vec<(u32, f64)>,
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -213,44 +216,47 @@ struct State {
 
 /// Simplify `mesh` (the voxel boundary of `cls`) within the bands of `opts`.
 pub fn simplify(mesh: &Mesh, cls: &Classifier, opts: SimplifyOptions) -> (Mesh, SimplifyStats) {
-    simplify_until(mesh, cls, opts, &|| false).expect("never stopped")
+    simplify_until(mesh.clone(), cls, opts, &|| false).expect("never stopped")
 }
 
 /// [`simplify`], asking `stop` between batches of candidates (milliseconds apart): None when it
-/// said yes.
+/// said yes. Takes the mesh so that its memory serves the simplifier's state.
 pub fn simplify_until(
-    mesh: &Mesh,
+    mesh: Mesh,
     cls: &Classifier,
     opts: SimplifyOptions,
     stop: &(dyn Fn() -> bool + Sync),
 ) -> Option<(Mesh, SimplifyStats)> {
     assert!(opts.min_radius > 0.0 && opts.eps < band::REACH && opts.eps_sweep < band::REACH);
     let n = mesh.positions.len();
+    let t_count = mesh.triangles.len();
     let mut s = State {
         hash: TriangleHash::new(HASH_CELL),
         opts,
-        pos: mesh.positions.clone(),
-        tris: mesh.triangles.clone(),
-        tri_alive: vec![true; mesh.triangles.len()],
+        pos: mesh.positions,
+        tris: mesh.triangles,
+        tri_alive: vec![true; t_count],
         star: vec![Vec::new(); n],
         vert_alive: vec![true; n],
         version: vec![0; n],
         quadric: vec![Quadric::default(); n],
-        live_tris: mesh.triangles.len(),
+        live_tris: t_count,
         stats: SimplifyStats::default(),
     };
-    for (t, tri) in mesh.triangles.iter().enumerate() {
-        let start = |u: u32| Some(mesh.triangles[u as usize].map(|x| mesh.positions[x as usize]));
+    for t in 0..t_count {
+        let tri = s.tris[t];
+        let (tris, pos) = (&s.tris, &s.pos);
+        let start = |u: u32| Some(tris[u as usize].map(|x| pos[x as usize]));
         s.hash
-            .insert(t as u32, &tri.map(|i| s.pos[i as usize]), start);
+            .insert(t as u32, &tri.map(|i| pos[i as usize]), start);
         let q = Quadric::plane(tri.map(|i| s.pos[i as usize]));
-        for &v in tri {
+        for &v in &tri {
             s.star[v as usize].push(t as u32);
             s.quadric[v as usize] = s.quadric[v as usize].add(&q);
         }
     }
-    let mut heap = BinaryHeap::new();
-    for tri in &mesh.triangles {
+    let mut heap = BinaryHeap::with_capacity(3 * t_count / 2);
+    for tri in &s.tris {
         for k in 0..3 {
             let (a, b) = (tri[k], tri[(k + 1) % 3]);
             if a < b {
@@ -268,6 +274,7 @@ pub fn simplify_until(
     let mut batch_no = 0u32;
     let mut batch: Vec<Candidate> = Vec::with_capacity(BATCH);
     let mut deferred: Vec<Candidate> = Vec::new();
+    let mut region: Vec<usize> = Vec::new();
     // Rejected edges by endpoint (each under both), retried once a collapse changes the
     // triangles around them.
     let mut parked: HashMap<u32, Vec<u32>> = HashMap::new();
@@ -280,16 +287,17 @@ pub fn simplify_until(
         while batch.len() < BATCH {
             let Some(c) = heap.pop() else { break };
             let (a, b) = (c.a as usize, c.b as usize);
-            if !s.vert_alive[a] || !s.vert_alive[b] || (s.version[a], s.version[b]) != c.ver {
+            if !s.is_current(&c) {
                 continue;
             }
-            let mut region = s.neighbours(a);
-            region.extend(s.neighbours(b));
+            region.clear();
+            s.star_vertices(a, &mut region);
+            s.star_vertices(b, &mut region);
             if region.iter().any(|&x| stamp[x] == batch_no) {
                 deferred.push(c);
                 continue;
             }
-            for x in region {
+            for &x in &region {
                 stamp[x] = batch_no;
             }
             batch.push(c);
@@ -311,7 +319,7 @@ pub fn simplify_until(
             if s.live_tris <= opts.target_triangles {
                 break 'batches;
             }
-            let plan = match outcome {
+            let mut plan = match outcome {
                 Ok(plan) => plan,
                 Err(why) => {
                     s.stats.count(why);
@@ -320,24 +328,31 @@ pub fn simplify_until(
                 }
             };
             let a = plan.a;
+            let fresh = std::mem::take(&mut plan.fresh);
             if s.commit(plan, &mut batch_moved) {
                 // Edges at a have a new cost: fresh candidates (their old entries are stale by
                 // a's version). Edges at a's neighbours keep their cost and their heap entries,
                 // but their stars now hold moved triangles, so those rejected earlier may pass
                 // now: they come back.
                 parked.remove(&(a as u32));
-                for nb in s.neighbours(a) {
-                    heap.push(s.candidate(a as u32, nb as u32));
-                    let Some(others) = parked.remove(&(nb as u32)) else {
+                for (nb, cost) in fresh {
+                    let c = Candidate {
+                        cost,
+                        a: a as u32,
+                        b: nb,
+                        ver: (s.version[a], s.version[nb as usize]),
+                    };
+                    s.push(&mut heap, c);
+                    let Some(others) = parked.remove(&nb) else {
                         continue;
                     };
-                    let still = s.neighbours(nb);
+                    let still = s.neighbours(nb as usize);
                     for x in others {
                         if let Some(list) = parked.get_mut(&x) {
-                            list.retain(|&y| y != nb as u32);
+                            list.retain(|&y| y != nb);
                         }
                         if x as usize != a && still.binary_search(&(x as usize)).is_ok() {
-                            heap.push(s.candidate(nb as u32, x));
+                            s.push(&mut heap, s.candidate(nb, x));
                         }
                     }
                 }
@@ -345,9 +360,36 @@ pub fn simplify_until(
                 s.park(&mut parked, c.a, c.b);
             }
         }
-        heap.extend(deferred.drain(..));
+        for c in deferred.drain(..) {
+            s.push(&mut heap, c);
+        }
     }
     Some((s.compact(), s.stats))
+}
+
+/// The quadric error and position of the cheapest target for merging a vertex with quadric
+/// `qa` at `pa` and one with `qb` at `pb`: an endpoint, the midpoint or the quadric's optimum
+/// (the first of the cheapest, in that order).
+fn cheapest(qa: &Quadric, pa: DVec3, qb: &Quadric, pb: DVec3) -> (f64, DVec3) {
+    let q = qa.add(qb);
+    let mid = (pa + pb) / 2.0;
+    let mut best = (q.error(pa), pa);
+    for v in [pb, mid] {
+        let e = q.error(v);
+        if e < best.0 {
+            best = (e, v);
+        }
+    }
+    if let Some(o) = q.optimum() {
+        // Keep the optimum near the edge: far-flung optima are numerical accidents.
+        if (o - mid).length() <= (pb - pa).length() {
+            let e = q.error(o);
+            if e < best.0 {
+                best = (e, o);
+            }
+        }
+    }
+    best
 }
 
 impl State {
@@ -361,6 +403,25 @@ impl State {
         }
     }
 
+    /// Whether `c` still describes its edge (both ends alive, neither moved since).
+    fn is_current(&self, c: &Candidate) -> bool {
+        let (a, b) = (c.a as usize, c.b as usize);
+        self.vert_alive[a] && self.vert_alive[b] && (self.version[a], self.version[b]) == c.ver
+    }
+
+    /// Pushes `c`; a full heap first drops its stale entries rather than growing (they are
+    /// most of it: every collapse makes the entries at its kept vertex stale), and grows only
+    /// when that frees less than a quarter.
+    fn push(&self, heap: &mut BinaryHeap<Candidate>, c: Candidate) {
+        if heap.len() == heap.capacity() {
+            heap.retain(|c| self.is_current(c));
+            if heap.len() * 4 > heap.capacity() * 3 {
+                heap.reserve(heap.capacity());
+            }
+        }
+        heap.push(c);
+    }
+
     fn candidate(&self, a: u32, b: u32) -> Candidate {
         Candidate {
             cost: self.best_target(a, b).0,
@@ -372,20 +433,18 @@ impl State {
 
     /// The quadric error and position of the cheapest target for collapsing edge (a, b).
     fn best_target(&self, a: u32, b: u32) -> (f64, DVec3) {
-        let (pa, pb) = (self.pos[a as usize], self.pos[b as usize]);
-        let q = self.quadric[a as usize].add(&self.quadric[b as usize]);
-        let mut options = vec![pa, pb, (pa + pb) / 2.0];
-        if let Some(o) = q.optimum() {
-            // Keep the optimum near the edge: far-flung optima are numerical accidents.
-            if (o - (pa + pb) / 2.0).length() <= (pb - pa).length() {
-                options.push(o);
-            }
-        }
-        options
-            .into_iter()
-            .map(|v| (q.error(v), v))
-            .min_by(|x, y| x.0.total_cmp(&y.0))
-            .expect("options")
+        let (a, b) = (a as usize, b as usize);
+        cheapest(&self.quadric[a], self.pos[a], &self.quadric[b], self.pos[b])
+    }
+
+    /// Appends the vertices of v's triangles to `out` (v and repeats included).
+    fn star_vertices(&self, v: usize, out: &mut Vec<usize>) {
+        out.extend(
+            self.star[v]
+                .iter()
+                .flat_map(|&t| self.tris[t as usize])
+                .map(|x| x as usize),
+        );
     }
 
     fn neighbours(&self, v: usize) -> Vec<usize> {
@@ -552,6 +611,16 @@ impl State {
                 return Err(Reject::Intersection);
             }
         }
+        let qv = self.quadric[a].add(&self.quadric[b]);
+        let fresh = na
+            .iter()
+            .chain(&nb)
+            .copied()
+            .filter(|&x| x != a && x != b)
+            .collect::<std::collections::BTreeSet<usize>>()
+            .into_iter()
+            .map(|x| (x as u32, cheapest(&qv, v, &self.quadric[x], self.pos[x]).0))
+            .collect();
         Ok(Plan {
             a,
             b,
@@ -559,6 +628,7 @@ impl State {
             shared,
             changed,
             new,
+            fresh,
         })
     }
 
@@ -572,6 +642,7 @@ impl State {
             shared,
             changed,
             new,
+            ..
         } = plan;
         // The same test against the triangles that earlier collapses of this batch moved, which
         // `check` saw at their old places.
@@ -743,8 +814,8 @@ mod tests {
     fn a_stop_request_ends_it_without_a_mesh() {
         let cls = boxed([8, 8, 8], [2.0, 2.0, 2.0], [6.0, 6.0, 6.0]);
         let start = extract(&cls);
-        assert!(simplify_until(&start, &cls, defaults(), &|| true).is_none());
-        assert!(simplify_until(&start, &cls, defaults(), &|| false).is_some());
+        assert!(simplify_until(start.clone(), &cls, defaults(), &|| true).is_none());
+        assert!(simplify_until(start, &cls, defaults(), &|| false).is_some());
     }
 
     #[test]
