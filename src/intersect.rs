@@ -162,9 +162,9 @@ pub fn conflict(si: [u32; 3], s: [DVec3; 3], ti: [u32; 3], t: [DVec3; 3]) -> boo
     // Shared vertices as (index in s, index in t); a triangle's ids are distinct, so at most 3.
     let mut common = [(0usize, 0usize); 3];
     let mut shared = 0;
-    for i in 0..3 {
-        for j in 0..3 {
-            if si[i] == ti[j] && shared < 3 {
+    for (i, x) in si.iter().enumerate() {
+        for (j, y) in ti.iter().enumerate() {
+            if x == y && shared < 3 {
                 common[shared] = (i, j);
                 shared += 1;
             }
