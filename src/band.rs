@@ -4,8 +4,7 @@
 //!
 //! Units: grid units throughout (one voxel edge = 1).
 
-use std::collections::HashMap;
-use std::hash::{BuildHasherDefault, Hasher};
+use std::hash::Hasher;
 
 use glam::DVec3;
 
@@ -108,9 +107,11 @@ const DOMINATORS: [u128; 125] = {
 /// other class in its 5×5×5 block (bit n as in [`BLOCK`]).
 pub struct Proximity<'c> {
     cls: &'c Classifier,
-    opposite: HashMap<u64, u128, BuildHasherDefault<KeyHasher>>,
-    /// Entries kept before the memo starts over ([`MEMO_CAP`]; smaller in tests).
-    cap: usize,
+    /// Direct-mapped cache of memo entries, a power of two long: slot [key | OCCUPIED, low
+    /// 64 bits, high 64 bits]. A new entry overwrites its slot's, so memory is fixed and the
+    /// answers never depend on what the cache holds. Allocated zeroed: pages the cache never
+    /// touches cost no memory.
+    slots: Vec<[u64; 3]>,
     /// The last entry looked up (key, entry); key u64::MAX: none.
     last: (u64, u128),
 }
@@ -120,27 +121,47 @@ const INSIDE_BIT: u32 = 127;
 /// Memo entry bits of the other-class voxels in the block.
 const OPPOSITE_BITS: u128 = (1 << 125) - 1;
 
-/// Memo entries kept per [`Proximity`] (about 66 bytes each with the table's slack); a full
-/// memo starts over, so memory stays bounded on any mesh (the memo is a cache: answers do not
-/// depend on it).
-const MEMO_CAP: usize = 1 << 21;
+/// Marks a filled cache slot (keys use 63 bits).
+const OCCUPIED: u64 = 1 << 63;
+
+/// Cache slots per [`Proximity`]: 24 bytes each, so at most 96 MiB per worker.
+const MAX_SLOTS: usize = 1 << 22;
 
 /// Nodes one region test may visit before it gives up (and rejects, which is always sound).
 const NODE_BUDGET: usize = 4096;
 
-impl<'c> Proximity<'c> {
-    pub fn new(cls: &'c Classifier) -> Self {
-        Proximity {
-            cls,
-            opposite: HashMap::default(),
-            cap: MEMO_CAP,
-            last: (u64::MAX, 0),
+/// The memo entry of voxel `v`, computed from the classifier.
+fn compute(cls: &Classifier, v: [isize; 3]) -> u128 {
+    let here = cls.inside(v[0], v[1], v[2]);
+    let mut m = 0u128;
+    for (n, o) in BLOCK.iter().enumerate() {
+        let [di, dj, dk] = o.map(|x| x as isize - 2);
+        if cls.inside(v[0] + di, v[1] + dj, v[2] + dk) != here {
+            m |= 1 << n;
         }
     }
+    let mut kept = 0u128;
+    for (n, dominators) in DOMINATORS.iter().enumerate() {
+        if m >> n & 1 == 1 && m & dominators == 0 {
+            kept |= 1 << n;
+        }
+    }
+    kept | (here as u128) << INSIDE_BIT
+}
 
-    /// Voxels in the memo (at most [`MEMO_CAP`]).
-    pub fn memo_len(&self) -> usize {
-        self.opposite.len()
+impl<'c> Proximity<'c> {
+    pub fn new(cls: &'c Classifier) -> Self {
+        Self::with_capacity(cls, MAX_SLOTS)
+    }
+
+    /// A memo sized for about `voxels` distinct voxels (a power of two in 2^10..=[`MAX_SLOTS`]).
+    pub fn with_capacity(cls: &'c Classifier, voxels: usize) -> Self {
+        let n = voxels.clamp(1 << 10, MAX_SLOTS).next_power_of_two();
+        Proximity {
+            cls,
+            slots: vec![[0; 3]; n],
+            last: (u64::MAX, 0),
+        }
     }
 
     /// The memo entry of voxel `v`: bits 0..125 as in [`BLOCK`] for the other-class cubes not
@@ -151,39 +172,18 @@ impl<'c> Proximity<'c> {
         if self.last.0 == key {
             return self.last.1; // refinement queries the same voxel many times in a row
         }
-        let entry = match self.opposite.get(&key) {
-            Some(&e) => e,
-            None => {
-                let e = self.compute(v);
-                if self.opposite.len() >= self.cap {
-                    self.opposite.clear();
-                }
-                self.opposite.insert(key, e);
-                e
-            }
+        let bits = self.slots.len().trailing_zeros();
+        let at = (key.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> (64 - bits)) as usize;
+        let slot = &mut self.slots[at];
+        let entry = if slot[0] == key | OCCUPIED {
+            slot[1] as u128 | (slot[2] as u128) << 64
+        } else {
+            let e = compute(self.cls, v);
+            *slot = [key | OCCUPIED, e as u64, (e >> 64) as u64];
+            e
         };
         self.last = (key, entry);
         entry
-    }
-
-    /// The memo entry of voxel `v`, computed from the classifier.
-    fn compute(&self, v: [isize; 3]) -> u128 {
-        let cls = self.cls;
-        let here = cls.inside(v[0], v[1], v[2]);
-        let mut m = 0u128;
-        for (n, o) in BLOCK.iter().enumerate() {
-            let [di, dj, dk] = o.map(|x| x as isize - 2);
-            if cls.inside(v[0] + di, v[1] + dj, v[2] + dk) != here {
-                m |= 1 << n;
-            }
-        }
-        let mut kept = 0u128;
-        for (n, dominators) in DOMINATORS.iter().enumerate() {
-            if m >> n & 1 == 1 && m & dominators == 0 {
-                kept |= 1 << n;
-            }
-        }
-        kept | (here as u128) << INSIDE_BIT
     }
 
     /// dist(p, ∂W) when it is below [`REACH`], else REACH; and whether p's voxel is inside W.
@@ -425,11 +425,12 @@ mod tests {
     fn memoized_distance_matches_brute_force() {
         for seed in 0..4 {
             let cls = random_at([14, 12, 13], seed);
-            let mut prox = Proximity::new(&cls);
-            // Odd seeds with a tiny memo that starts over every few voxels.
-            if seed % 2 == 1 {
-                prox.cap = 7;
-            }
+            // Odd seeds with the smallest memo, whose slots are overwritten all the time.
+            let mut prox = if seed % 2 == 1 {
+                Proximity::with_capacity(&cls, 0)
+            } else {
+                Proximity::new(&cls)
+            };
             let mut rnd = lcg(seed + 100);
             let mut near = 0;
             for _ in 0..20_000 {
@@ -444,7 +445,6 @@ mod tests {
                     }
                     _ => assert_eq!(d, REACH, "{p}: {d}, brute force finds nothing nearer"),
                 }
-                assert!(prox.memo_len() <= prox.cap);
             }
             assert!(
                 near > 5000,

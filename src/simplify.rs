@@ -265,8 +265,9 @@ pub fn simplify_until(
         }
     }
     // One distance memo per worker thread, kept across batches.
+    // Sized for the voxels near the surface: about two per start triangle.
     let proxes: Vec<Mutex<Proximity>> = (0..rayon::current_num_threads())
-        .map(|_| Mutex::new(Proximity::new(cls)))
+        .map(|_| Mutex::new(Proximity::with_capacity(cls, 2 * t_count)))
         .collect();
     // Batch stamp per vertex: a candidate whose region (a, b and their neighbours) meets an
     // earlier candidate's region in the same batch waits for the next batch.
