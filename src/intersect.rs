@@ -269,9 +269,10 @@ fn corners_overlap(p: DVec3, ab: [DVec3; 2], cd: [DVec3; 2], n: DVec3) -> bool {
 /// Cell size at which an insert prunes the cell (a cell of the start mesh holds about 8-16).
 const PRUNE_AT: usize = 32;
 
-/// Triangle ids by the cells their bounding boxes meet, each id at most once per cell. A
-/// triangle that moves is inserted again under its new cells, so every live triangle is found in
-/// each cell its current box meets; inserts prune the cells they touch.
+/// Triangle ids by the cells their bounding boxes meet (cells their plane misses by more than
+/// TOUCH left out), each id at most once per cell. A triangle that moves is inserted again under
+/// its new cells, so every live triangle is found in each cell that holds a point within TOUCH
+/// of it; inserts prune the cells they touch.
 pub struct TriangleHash {
     cell: f64,
     cells: HashMap<u64, Vec<u32>, BuildHasherDefault<KeyHasher>>,
@@ -301,20 +302,32 @@ impl TriangleHash {
         (c[0] + 2) as u64 | ((c[1] + 2) as u64) << 21 | ((c[2] + 2) as u64) << 42
     }
 
-    /// Add `id` (positions `t`) under every cell its box meets. A cell holding [`PRUNE_AT`] ids
+    /// Add `id` (positions `t`) under every cell its box meets that its plane comes within
+    /// TOUCH of (every cell for a degenerate triangle). A cell holding [`PRUNE_AT`] ids
     /// or more first drops those that `current` says are gone or have moved away from it
     /// (`current`: a triangle's positions now, None when it is gone).
     pub fn insert(&mut self, id: u32, t: &[DVec3; 3], current: impl Fn(u32) -> Option<[DVec3; 3]>) {
         let (lo, hi) = self.cell_range(t);
         let cell = self.cell;
+        // A large tilted triangle's box spans many cells its plane never comes near: skip the
+        // cells whose box, widened by TOUCH, misses the plane. Sound for `near`: a point within
+        // TOUCH of the triangle lies in a cell the plane comes within TOUCH of.
+        let n = (t[1] - t[0]).cross(t[2] - t[0]);
+        let (n_abs, offset) = (n.abs(), n.dot(t[0]));
+        let half = DVec3::splat(cell / 2.0 + TOUCH);
+        let slack = 1e-9 * (n_abs.dot(t[0].abs()) + n_abs.dot(half));
         for k in lo[2]..=hi[2] {
             for j in lo[1]..=hi[1] {
                 for i in lo[0]..=hi[0] {
-                    let ids = self.cells.entry(Self::key([i, j, k])).or_default();
                     let (clo, chi) = (
                         DVec3::new(i as f64, j as f64, k as f64) * cell,
                         DVec3::new((i + 1) as f64, (j + 1) as f64, (k + 1) as f64) * cell,
                     );
+                    let centre = (clo + chi) / 2.0;
+                    if (n.dot(centre) - offset).abs() > n_abs.dot(half) + slack {
+                        continue;
+                    }
+                    let ids = self.cells.entry(Self::key([i, j, k])).or_default();
                     if ids.len() >= PRUNE_AT {
                         ids.retain(|&u| {
                             current(u).is_some_and(|p| bounds_meet(bounds(&p), (clo, chi)))
@@ -480,5 +493,56 @@ mod tests {
             hits > 30 && misses > 30,
             "{hits} intersecting, {misses} apart"
         );
+    }
+
+    /// Any triangle through a point of an inserted one finds it, however large and tilted the
+    /// inserted one is (most of its box's cells are skipped).
+    #[test]
+    fn hash_finds_every_triangle_through_a_point_of_an_inserted_one() {
+        let mut seed = 3u64;
+        let mut f = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let mut hash = TriangleHash::new(2.0);
+        let mut tris = Vec::new();
+        for id in 0..200u32 {
+            let c = DVec3::new(f(), f(), f()) * 40.0;
+            let span = if id % 4 == 0 { 25.0 } else { 3.0 };
+            let t = [0, 1, 2].map(|_| c + (DVec3::new(f(), f(), f()) - 0.5) * span);
+            hash.insert(id, &t, |_| None);
+            tris.push(t);
+        }
+        let mut skipped = 0;
+        let mut out = Vec::new();
+        for (id, t) in tris.iter().enumerate() {
+            for _ in 0..20 {
+                let (u, v) = (f(), f());
+                let (u, v) = if u + v > 1.0 {
+                    (1.0 - u, 1.0 - v)
+                } else {
+                    (u, v)
+                };
+                let y = t[0] + u * (t[1] - t[0]) + v * (t[2] - t[0]);
+                let q = [0, 1, 2].map(|_| y + (DVec3::new(f(), f(), f()) - 0.5) * 0.1);
+                let q = [y, q[1], q[2]];
+                hash.near(&q, &mut out);
+                assert!(
+                    out.contains(&(id as u32)),
+                    "triangle {id} not found through {y}"
+                );
+            }
+            let (lo, hi) = hash.cell_range(t);
+            let boxed = (0..3).map(|a| hi[a] - lo[a] + 1).product::<i64>();
+            let held = hash
+                .cells
+                .values()
+                .filter(|ids| ids.contains(&(id as u32)))
+                .count();
+            skipped += boxed as usize - held;
+        }
+        assert!(skipped > 1000, "only {skipped} cells skipped");
     }
 }

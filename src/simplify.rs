@@ -134,15 +134,20 @@ impl Quadric {
     }
 }
 
+/// A heap entry: 16 bytes, as the heap holds about 1.5 per start triangle.
 #[derive(Clone, Copy, Debug)]
 struct Candidate {
-    cost: f64,
+    /// Quadric error of the cheapest target (f32: only the order matters, and ties fall to
+    /// [`Candidate::scatter`]).
+    cost: f32,
     a: u32,
     b: u32,
-    /// Vertex versions when the candidate was computed; stale if either changed (the target
-    /// is recomputed when a fresh candidate is taken, keeping the heap's entries small).
-    ver: (u32, u32),
+    /// version[a] + version[b] when the candidate was computed. Versions only grow, so the sum
+    /// changes exactly when either does: the entry is stale then (the target is recomputed
+    /// when a fresh candidate is taken, keeping the heap's entries small).
+    ver: u32,
 }
+const _: () = assert!(std::mem::size_of::<Candidate>() == 16);
 
 impl Candidate {
     /// Tie-break among equal costs: a hash of the edge, so that equal-cost collapses (flat
@@ -338,10 +343,10 @@ pub fn simplify_until(
                 parked.remove(&(a as u32));
                 for (nb, cost) in fresh {
                     let c = Candidate {
-                        cost,
+                        cost: cost as f32,
                         a: a as u32,
                         b: nb,
-                        ver: (s.version[a], s.version[nb as usize]),
+                        ver: s.version[a] + s.version[nb as usize],
                     };
                     s.push(&mut heap, c);
                     let Some(others) = parked.remove(&nb) else {
@@ -407,7 +412,7 @@ impl State {
     /// Whether `c` still describes its edge (both ends alive, neither moved since).
     fn is_current(&self, c: &Candidate) -> bool {
         let (a, b) = (c.a as usize, c.b as usize);
-        self.vert_alive[a] && self.vert_alive[b] && (self.version[a], self.version[b]) == c.ver
+        self.vert_alive[a] && self.vert_alive[b] && self.version[a] + self.version[b] == c.ver
     }
 
     /// Pushes `c`; a full heap first drops its stale entries rather than growing (they are
@@ -425,10 +430,10 @@ impl State {
 
     fn candidate(&self, a: u32, b: u32) -> Candidate {
         Candidate {
-            cost: self.best_target(a, b).0,
+            cost: self.best_target(a, b).0 as f32,
             a,
             b,
-            ver: (self.version[a as usize], self.version[b as usize]),
+            ver: self.version[a as usize] + self.version[b as usize],
         }
     }
 
@@ -673,7 +678,7 @@ impl State {
             }
             self.star[a].push(t);
         }
-        self.star[b].clear();
+        self.star[b] = Vec::new(); // b is gone: free its star
         self.vert_alive[b] = false;
         self.pos[a] = v;
         let (tris, pos, alive) = (&self.tris, &self.pos, &self.tri_alive);
