@@ -251,10 +251,10 @@ pub fn simplify_until(
     for t in 0..t_count {
         let tri = s.tris[t];
         let (tris, pos) = (&s.tris, &s.pos);
+        let p = tri.map(|i| pos[i as usize]);
         let start = |u: u32| Some(tris[u as usize].map(|x| pos[x as usize]));
-        s.hash
-            .insert(t as u32, &tri.map(|i| pos[i as usize]), start);
-        let q = Quadric::plane(tri.map(|i| s.pos[i as usize]));
+        s.hash.insert(t as u32, &p, start);
+        let q = Quadric::plane(p);
         for &v in &tri {
             s.star[v as usize].push(t as u32);
             s.quadric[v as usize] = s.quadric[v as usize].add(&q);
@@ -329,7 +329,7 @@ pub fn simplify_until(
                 Ok(plan) => plan,
                 Err(why) => {
                     s.stats.count(why);
-                    s.park(&mut parked, c.a, c.b);
+                    park(&mut parked, c.a, c.b);
                     continue;
                 }
             };
@@ -349,21 +349,10 @@ pub fn simplify_until(
                         ver: s.version[a] + s.version[nb as usize],
                     };
                     s.push(&mut heap, c);
-                    let Some(others) = parked.remove(&nb) else {
-                        continue;
-                    };
-                    let still = s.neighbours(nb as usize);
-                    for x in others {
-                        if let Some(list) = parked.get_mut(&x) {
-                            list.retain(|&y| y != nb);
-                        }
-                        if x as usize != a && still.binary_search(&(x as usize)).is_ok() {
-                            s.push(&mut heap, s.candidate(nb, x));
-                        }
-                    }
+                    s.retry_parked(&mut parked, &mut heap, nb, a as u32);
                 }
             } else {
-                s.park(&mut parked, c.a, c.b);
+                park(&mut parked, c.a, c.b);
             }
         }
         for c in deferred.drain(..) {
@@ -398,13 +387,36 @@ fn cheapest(qa: &Quadric, pa: DVec3, qb: &Quadric, pb: DVec3) -> (f64, DVec3) {
     best
 }
 
+/// Parks rejected edge (a, b) under both endpoints, once.
+fn park(parked: &mut HashMap<u32, Vec<u32>>, a: u32, b: u32) {
+    for (x, y) in [(a, b), (b, a)] {
+        let list = parked.entry(x).or_default();
+        if !list.contains(&y) {
+            list.push(y);
+        }
+    }
+}
+
 impl State {
-    /// Parks rejected edge (a, b) under both endpoints, once.
-    fn park(&self, parked: &mut HashMap<u32, Vec<u32>>, a: u32, b: u32) {
-        for (x, y) in [(a, b), (b, a)] {
-            let list = parked.entry(x).or_default();
-            if !list.contains(&y) {
-                list.push(y);
+    /// Pushes the parked edges at `v` back onto the heap (those still edges, except the one to
+    /// `fresh`, whose candidate is already new) and unparks them under both endpoints.
+    fn retry_parked(
+        &self,
+        parked: &mut HashMap<u32, Vec<u32>>,
+        heap: &mut BinaryHeap<Candidate>,
+        v: u32,
+        fresh: u32,
+    ) {
+        let Some(others) = parked.remove(&v) else {
+            return;
+        };
+        let still = self.neighbours(v as usize);
+        for x in others {
+            if let Some(list) = parked.get_mut(&x) {
+                list.retain(|&y| y != v);
+            }
+            if x != fresh && still.binary_search(&(x as usize)).is_ok() {
+                self.push(heap, self.candidate(v, x));
             }
         }
     }

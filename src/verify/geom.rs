@@ -197,23 +197,28 @@ pub fn singular_bounds(m: [DVec3; 3]) -> (f64, f64) {
     (s_max, s_min)
 }
 
+/// Small deterministic generator for the verifier's tests (xorshift*, seed nonzero).
+#[cfg(test)]
+pub(crate) struct Rng(pub u64);
+
+#[cfg(test)]
+impl Rng {
+    /// Uniform in [0, 1).
+    pub fn f(&mut self) -> f64 {
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        (self.0.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 11) as f64 / (1u64 << 53) as f64
+    }
+    /// Uniform in the cube [-s, s)³.
+    pub fn v(&mut self, s: f64) -> DVec3 {
+        DVec3::new(self.f() - 0.5, self.f() - 0.5, self.f() - 0.5) * 2.0 * s
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// Small deterministic generator for the tests.
-    struct Rng(u64);
-    impl Rng {
-        fn f(&mut self) -> f64 {
-            self.0 ^= self.0 >> 12;
-            self.0 ^= self.0 << 25;
-            self.0 ^= self.0 >> 27;
-            (self.0.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 11) as f64 / (1u64 << 53) as f64
-        }
-        fn v(&mut self, s: f64) -> DVec3 {
-            DVec3::new(self.f() - 0.5, self.f() - 0.5, self.f() - 0.5) * 2.0 * s
-        }
-    }
 
     #[test]
     fn triangle_distance_is_the_minimum_over_dense_samples() {

@@ -57,13 +57,9 @@ impl Frames {
             .perm
             .iter()
             .map(|&k| {
-                let m = part.poses[k as usize].matrix;
+                let pose = &part.poses[k as usize];
+                let (m, s_min) = (pose.matrix, pose.sigma_min);
                 let inv = m.inverse();
-                let (_, s_min) = geom::singular_bounds([
-                    m.x_axis.truncate(),
-                    m.y_axis.truncate(),
-                    m.z_axis.truncate(),
-                ]);
                 let residual = m * inv - DMat4::IDENTITY;
                 let frob = |a: &DMat4| a.to_cols_array().iter().map(|x| x * x).sum::<f64>().sqrt();
                 let err = 4.0 * (frob(&residual) + 1e-14) * frob(&inv);
@@ -293,55 +289,32 @@ fn box_gap(a_lo: DVec3, a_hi: DVec3, b_lo: DVec3, b_hi: DVec3) -> f64 {
 mod tests {
     use super::*;
     use crate::verify::bvh::Bvh;
+    use crate::verify::geom::Rng;
     use crate::verify::poses::{PartPose, PoseTree};
-
-    struct Rng(u64);
-    impl Rng {
-        fn f(&mut self) -> f64 {
-            self.0 ^= self.0 << 13;
-            self.0 ^= self.0 >> 7;
-            self.0 ^= self.0 << 17;
-            (self.0 >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
-        }
-        fn v(&mut self) -> DVec3 {
-            DVec3::new(self.f(), self.f(), self.f())
-        }
-    }
 
     /// A random part: `n` small triangles scattered in the unit cube, posed by `poses` random
     /// affine maps near a common one (vibration-like, every pose overlapping).
     fn random_part(rng: &mut Rng, n: usize, poses: usize, shear: f64) -> PosedPart {
         let tris: Vec<[DVec3; 3]> = (0..n)
             .map(|_| {
-                let c = rng.v();
-                [c, c + 0.2 * rng.v(), c + 0.2 * rng.v()]
+                let c = rng.v(1.0);
+                [c, c + 0.2 * rng.v(1.0), c + 0.2 * rng.v(1.0)]
             })
             .collect();
         let bvh = Bvh::build(tris, 1);
         let base = DMat4::from_rotation_translation(
-            glam::DQuat::from_axis_angle(rng.v().normalize(), 1.0),
-            rng.v(),
+            glam::DQuat::from_axis_angle(rng.v(1.0).normalize(), 1.0),
+            rng.v(1.0),
         );
         let poses: Vec<PartPose> = (0..poses)
             .map(|_| {
                 let jitter = DMat4::from_cols(
-                    (DVec3::X + shear * rng.v()).extend(0.0),
-                    (DVec3::Y + shear * rng.v()).extend(0.0),
-                    (DVec3::Z + shear * rng.v()).extend(0.0),
-                    (0.05 * rng.v()).extend(1.0),
+                    (DVec3::X + shear * rng.v(1.0)).extend(0.0),
+                    (DVec3::Y + shear * rng.v(1.0)).extend(0.0),
+                    (DVec3::Z + shear * rng.v(1.0)).extend(0.0),
+                    (0.05 * rng.v(1.0)).extend(1.0),
                 );
-                let m = base * jitter;
-                let (sigma_max, _) = geom::singular_bounds([
-                    m.x_axis.truncate(),
-                    m.y_axis.truncate(),
-                    m.z_axis.truncate(),
-                ]);
-                PartPose {
-                    matrix: m,
-                    sigma_max,
-                    row: None,
-                    line: None,
-                }
+                PartPose::new(base * jitter, None, None)
             })
             .collect();
         let root = &bvh.nodes[0];
@@ -374,7 +347,7 @@ mod tests {
             let frames: Vec<Frames> = parts.iter().map(Frames::new).collect();
             let mut scratch = Scratch::default();
             for _ in 0..60 {
-                let p = 2.0 * rng.v();
+                let p = 2.0 * rng.v(1.0);
                 let truth = brute_force(&parts[0], p);
                 let (hit, lower) =
                     nearest(&parts, &frames, &mut scratch, p, f64::NEG_INFINITY, tol);
@@ -400,9 +373,9 @@ mod tests {
         let frames: Vec<Frames> = parts.iter().map(Frames::new).collect();
         let mut scratch = Scratch::default();
         for _ in 0..100 {
-            let p = 2.0 * rng.v();
+            let p = 2.0 * rng.v(1.0);
             let truth = brute_force(&parts[0], p);
-            let threshold = truth + 0.3 * rng.f();
+            let threshold = truth + 0.3 * (2.0 * rng.f() - 1.0);
             let (hit, lower) = nearest(&parts, &frames, &mut scratch, p, threshold, 0.0);
             if truth <= threshold {
                 assert!(hit.dist <= threshold, "{} > {threshold}", hit.dist);

@@ -17,10 +17,29 @@ pub struct PartPose {
     pub matrix: DMat4,
     /// Upper bound of the largest singular value of the linear part.
     pub sigma_max: f64,
+    /// Lower bound of the smallest singular value of the linear part.
+    pub sigma_min: f64,
     /// Index of the trajectory row (0-based), None for a part no row moves.
     pub row: Option<u32>,
     /// CSV line of that row.
     pub line: Option<u64>,
+}
+
+impl PartPose {
+    pub fn new(matrix: DMat4, row: Option<u32>, line: Option<u64>) -> PartPose {
+        let (sigma_max, sigma_min) = geom::singular_bounds([
+            matrix.x_axis.truncate(),
+            matrix.y_axis.truncate(),
+            matrix.z_axis.truncate(),
+        ]);
+        PartPose {
+            matrix,
+            sigma_max,
+            sigma_min,
+            row,
+            line,
+        }
+    }
 }
 
 /// A part of the generator with its local triangles, BVH and poses.
@@ -39,19 +58,6 @@ pub fn assign(
     trajectory: &Trajectory,
     csv_path: &Path,
 ) -> Result<Vec<Vec<PartPose>>, InputError> {
-    let pose = |m: DMat4, row: Option<u32>, line: Option<u64>| {
-        let (sigma_max, _) = geom::singular_bounds([
-            m.x_axis.truncate(),
-            m.y_axis.truncate(),
-            m.z_axis.truncate(),
-        ]);
-        PartPose {
-            matrix: m,
-            sigma_max,
-            row,
-            line,
-        }
-    };
     let mut by_part: Vec<Vec<PartPose>> = vec![Vec::new(); generator.parts.len()];
     for (row, p) in trajectory.poses.iter().enumerate() {
         let targets: Vec<usize> = if trajectory.has_node_column {
@@ -91,12 +97,12 @@ pub fn assign(
         };
         for i in targets {
             let m = p.matrix * generator.parts[i].world;
-            by_part[i].push(pose(m, Some(row as u32), Some(p.line)));
+            by_part[i].push(PartPose::new(m, Some(row as u32), Some(p.line)));
         }
     }
     for (i, poses) in by_part.iter_mut().enumerate() {
         if poses.is_empty() {
-            poses.push(pose(generator.parts[i].world, None, None));
+            poses.push(PartPose::new(generator.parts[i].world, None, None));
         }
     }
     Ok(by_part)
@@ -274,12 +280,7 @@ mod tests {
                     (DVec3::Z + 0.1 * DVec3::new(f(), f(), f())).extend(0.0),
                     DVec3::new(f(), f(), f()).extend(1.0),
                 );
-                PartPose {
-                    matrix: m,
-                    sigma_max: 2.0,
-                    row: None,
-                    line: None,
-                }
+                PartPose::new(m, None, None)
             })
             .collect();
         let origin = DVec3::new(0.3, -0.2, 0.1);
