@@ -319,6 +319,15 @@ def last_job(state=None):
     return None
 
 
+def chosen_job(path):
+    """(folder, label) of the job folder an operator was given, else of this session's last
+    finished job (label None for a given folder); (None, None) when there is neither."""
+    if path:
+        return os.path.abspath(bpy.path.abspath(path)).rstrip(os.sep), None
+    job = last_job("done")
+    return (job["dir"], job["label"]) if job else (None, None)
+
+
 # ---------------------------------------------------------------------------------------------
 # Progress: a timer reads status.json (never blocks), and the background-mode wait
 
@@ -513,14 +522,10 @@ class SWEPTVOL_OT_import_result(bpy.types.Operator):
     job: bpy.props.StringProperty(name="Job folder", subtype="DIR_PATH")
 
     def execute(self, context):
-        if self.job:
-            job_dir, label = os.path.abspath(bpy.path.abspath(self.job)).rstrip(os.sep), None
-        else:
-            job = last_job("done")
-            if job is None:
-                self.report({"ERROR"}, "no finished sweptvol job in this session: give its folder")
-                return {"CANCELLED"}
-            job_dir, label = job["dir"], job["label"]
+        job_dir, label = chosen_job(self.job)
+        if job_dir is None:
+            self.report({"ERROR"}, "no finished sweptvol job in this session: give its folder")
+            return {"CANCELLED"}
         try:
             obj = import_result(job_dir, context.scene, label)
         except (ValueError, OSError, KeyError) as e:
@@ -539,9 +544,8 @@ class SWEPTVOL_OT_open_depth_images(bpy.types.Operator):
     job: bpy.props.StringProperty(name="Job folder", subtype="DIR_PATH")
 
     def execute(self, context):
-        job = None if self.job else last_job("done")
-        job_dir = os.path.abspath(bpy.path.abspath(self.job)) if self.job else (job or {}).get("dir")
-        if not job_dir:
+        job_dir, _ = chosen_job(self.job)
+        if job_dir is None:
             self.report({"ERROR"}, "no finished sweptvol job in this session: give its folder")
             return {"CANCELLED"}
         images = depth_images(job_dir)

@@ -257,17 +257,7 @@ def point_triangle_distance(points, tris):
     return best
 
 
-dg = bpy.context.evaluated_depsgraph_get()
-me = swept.evaluated_get(dg).to_mesh()
-me.calc_loop_triangles()
-sv = np.empty(len(me.vertices) * 3)
-me.vertices.foreach_get("co", sv)
-st = np.empty(len(me.loop_triangles) * 3, dtype=np.int64)
-me.loop_triangles.foreach_get("vertices", st)
-mw = np.array(swept.matrix_world)
-sv = sv.reshape(-1, 3) @ mw[:3, :3].T + mw[:3, 3]
-swept_tris = sv[st.reshape(-1, 3)]
-swept.evaluated_get(dg).to_mesh_clear()
+sv, swept_tris = world_mesh(swept)
 check(len(swept_tris) > 0, "the imported mesh is empty")
 check(abs(winding_numbers(np.array([[100.0, 100.0, 100.0]]), swept_tris)[0]) < 1e-6,
       "the imported mesh is not closed (winding number far away is not 0)")
