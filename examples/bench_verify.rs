@@ -191,6 +191,7 @@ fn main() -> anyhow::Result<()> {
             trajectory: csv,
             mesh: mesh30k,
             bound: None,
+            bound_scope: Default::default(),
             spacing: None,
         },
         &verify::Silent,

@@ -13,6 +13,7 @@ use sweptvol::error::InputError;
 use sweptvol::grid::{Accuracy, Overrides};
 use sweptvol::pipeline::{self, Backend, BackendChoice, RunOptions};
 use sweptvol::sweep::Observer;
+use sweptvol::verify::BoundScope;
 use sweptvol::watch::{self, WatchOptions};
 
 #[derive(Parser)]
@@ -88,6 +89,11 @@ struct VerifyArgs {
     /// volume, upper bound) is at most B world units.
     #[arg(long, value_name = "B")]
     bound: Option<f64>,
+    /// Where --bound must hold: everywhere, or axis-visible (mesh points whose six axis rays
+    /// all come within B of the swept volume lie in filled pockets and are accepted: the scope
+    /// of `run`'s hausdorff_bound).
+    #[arg(long, value_enum, default_value_t = BoundScope::Everywhere)]
+    bound_scope: BoundScope,
     /// Finest covering radius of the samples, world units [default: mesh diagonal / 2000].
     #[arg(long, value_name = "S")]
     spacing: Option<f64>,
@@ -269,6 +275,7 @@ fn verify(args: VerifyArgs) -> anyhow::Result<ExitCode> {
         trajectory: args.trajectory,
         mesh: args.mesh,
         bound: args.bound,
+        bound_scope: args.bound_scope,
         spacing: args.spacing,
     };
     let bar = if args.quiet || args.json {

@@ -377,6 +377,21 @@ fn analytic_box_hull_clearance_and_deviation() {
     let (code, r) = verify_json(&g, &csv, &m, &["--spacing", &sp, "--bound", &b]);
     assert_eq!(code, 3);
     assert!(failures(&r).contains("deviation"), "{}", failures(&r));
+    // The grown hull's corners see straight out: no pocket excuses them.
+    let scope = ["--bound-scope", "axis-visible"];
+    let (code, r) = verify_json(
+        &g,
+        &csv,
+        &m,
+        &[&["--spacing", &sp, "--bound", &b], &scope[..]].concat(),
+    );
+    assert_eq!(code, 3);
+    let f = failures(&r);
+    assert!(
+        f.contains("sees out of the swept volume along an axis"),
+        "{f}"
+    );
+    assert!(r["deviation"]["pockets"]["visible"].as_u64().unwrap() > 0);
 
     // The exact hull: the generator's faces lie on it, so no clearance: not certified, and
     // nothing is outside either.
@@ -403,6 +418,78 @@ fn analytic_box_hull_clearance_and_deviation() {
     assert_eq!(w["csv_line"], 4, "{w}");
     let depth = w["distance"].as_f64().unwrap();
     assert!(depth > 0.0 && depth <= 0.01 + 1e-9, "{depth}");
+}
+
+/// A cup (floor and four walls) under a wider lid with a gap between: the cup's inside is
+/// hidden from all six axis directions, so `run` fills it, and the filled top lies farther than
+/// `hausdorff_bound` from the part (its scope excludes hidden pockets). verify finds that place
+/// and proves every piece beyond the bound hidden.
+#[test]
+fn a_filled_pocket_exceeds_the_bound_only_where_hidden_from_every_axis() {
+    let dir = tempfile::tempdir().unwrap();
+    let boxes = [
+        ([0.0, 0.0, 0.0], [1.0, 1.0, 0.1]),
+        ([0.0, 0.0, 0.0], [0.1, 1.0, 0.6]),
+        ([0.9, 0.0, 0.0], [1.0, 1.0, 0.6]),
+        ([0.1, 0.0, 0.0], [0.9, 0.1, 0.6]),
+        ([0.1, 0.9, 0.0], [0.9, 1.0, 0.6]),
+        ([-0.1, -0.1, 0.85], [1.1, 1.1, 0.95]),
+    ];
+    let (mut v, mut t) = (Vec::new(), Vec::new());
+    for (lo, hi) in boxes {
+        let (bv, bt) = cuboid(lo, hi);
+        let base = v.len() as u32;
+        v.extend(bv);
+        t.extend(bt.iter().map(|tri| tri.map(|i| i + base)));
+    }
+    let g = dir.path().join("cup.glb");
+    write_glb(&g, &v, &t);
+    let csv = dir.path().join("cup.csv");
+    fs::write(&csv, "frame,tx,ty,tz,qw,qx,qy,qz\n0,0,0,0,1,0,0,0\n").unwrap();
+    let out = dir.path().join("out");
+    let o = sweptvol(&[
+        "run",
+        "--generator",
+        s(&g),
+        "--trajectory",
+        s(&csv),
+        "--out",
+        s(&out),
+        "--resolution",
+        "60",
+        "--backend",
+        "cpu",
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let report: Value =
+        serde_json::from_slice(&fs::read(out.join("cup.report.json")).unwrap()).unwrap();
+    let bound = report["mesh"]["hausdorff_bound"].as_f64().unwrap();
+    let m = out.join("cup.swept.glb");
+    let b = format!("{bound}");
+
+    // Strict: the filled top of the cup (about 0.2 below the lid, 0.4 from the walls) is beyond.
+    let (code, r) = verify_json(&g, &csv, &m, &["--bound", &b]);
+    assert_eq!(code, 3, "{}", failures(&r));
+    assert_eq!(r["containment"]["holds"], true);
+    let dev = r["deviation"]["lower"].as_f64().unwrap();
+    assert!(dev > 1.5 * bound, "deviation {dev} vs bound {bound}");
+    let p = &r["deviation"]["pockets"];
+    assert!(p["hidden"].as_u64().unwrap() > 0, "{p}");
+    assert_eq!(p["visible"], 0, "{p}");
+    assert_eq!(p["undetermined"], 0, "{p}");
+    let f = failures(&r);
+    assert!(f.contains("hidden from the six axis directions"), "{f}");
+
+    // In the scope of `run`'s bound: passes.
+    let (code, r) = verify_json(
+        &g,
+        &csv,
+        &m,
+        &["--bound", &b, "--bound-scope", "axis-visible"],
+    );
+    assert_eq!(code, 0, "{}", failures(&r));
+    assert_eq!(r["deviation"]["scope"], "axis-visible");
 }
 
 #[test]
