@@ -467,9 +467,12 @@ fn a_filled_pocket_exceeds_the_bound_only_where_hidden_from_every_axis() {
     let bound = report["mesh"]["hausdorff_bound"].as_f64().unwrap();
     let m = out.join("cup.swept.glb");
     let b = format!("{bound}");
+    // Pieces of a quarter voxel: the default (diagonal / 2000) takes half a minute here.
+    let h = report["parameters"]["voxel_size"].as_f64().unwrap();
+    let sp = format!("{}", h / 4.0);
 
     // Strict: the filled top of the cup (about 0.2 below the lid, 0.4 from the walls) is beyond.
-    let (code, r) = verify_json(&g, &csv, &m, &["--bound", &b]);
+    let (code, r) = verify_json(&g, &csv, &m, &["--spacing", &sp, "--bound", &b]);
     assert_eq!(code, 3, "{}", failures(&r));
     assert_eq!(r["containment"]["holds"], true);
     let dev = r["deviation"]["lower"].as_f64().unwrap();
@@ -486,7 +489,14 @@ fn a_filled_pocket_exceeds_the_bound_only_where_hidden_from_every_axis() {
         &g,
         &csv,
         &m,
-        &["--bound", &b, "--bound-scope", "axis-visible"],
+        &[
+            "--spacing",
+            &sp,
+            "--bound",
+            &b,
+            "--bound-scope",
+            "axis-visible",
+        ],
     );
     assert_eq!(code, 0, "{}", failures(&r));
     assert_eq!(r["deviation"]["scope"], "axis-visible");

@@ -262,9 +262,9 @@ fn settle(
     if found + r <= bound {
         return Settled::Within;
     }
-    // Above the deviation's spacing, only pieces wholly beyond B try rays (the others split:
-    // rays that escape are long to trace).
-    if r > spacing && found - tol - r <= bound {
+    // Above the deviation's spacing, only pieces whose centre is beyond B try rays (the
+    // others split: they are mostly within B, and rays that escape are long to trace).
+    if r > spacing && found - tol <= bound {
         return Settled::Open;
     }
     // Hidden: all six rays of c come within B - 2r (proofs of "blocked" may overshoot their
