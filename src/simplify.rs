@@ -51,6 +51,8 @@ pub struct SimplifyOptions {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 pub struct SimplifyStats {
     pub collapses: u64,
+    /// Collapses that kept the surface's point set (flat vertices merged along their plane).
+    pub collapses_in_plane: u64,
     pub rejected_topology: u64,
     pub rejected_flip: u64,
     pub rejected_band: u64,
@@ -192,6 +194,8 @@ struct Plan {
     /// a's neighbours after the collapse, with the cost of collapsing the edge to each (read
     /// before the batch: no other collapse of the batch moves them or a).
     fresh: Vec<(u32, f64)>,
+    /// The collapse keeps the surface's point set ([`State::keeps_surface`]).
+    in_plane: bool,
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -233,33 +237,9 @@ pub fn simplify_until(
     stop: &(dyn Fn() -> bool + Sync),
 ) -> Option<(Mesh, SimplifyStats)> {
     assert!(opts.min_radius > 0.0 && opts.eps < band::REACH && opts.eps_sweep < band::REACH);
-    let n = mesh.positions.len();
     let t_count = mesh.triangles.len();
-    let mut s = State {
-        hash: TriangleHash::new(HASH_CELL),
-        opts,
-        pos: mesh.positions,
-        tris: mesh.triangles,
-        tri_alive: vec![true; t_count],
-        star: vec![Vec::new(); n],
-        vert_alive: vec![true; n],
-        version: vec![0; n],
-        quadric: vec![Quadric::default(); n],
-        live_tris: t_count,
-        stats: SimplifyStats::default(),
-    };
-    for t in 0..t_count {
-        let tri = s.tris[t];
-        let (tris, pos) = (&s.tris, &s.pos);
-        let p = tri.map(|i| pos[i as usize]);
-        let start = |u: u32| Some(tris[u as usize].map(|x| pos[x as usize]));
-        s.hash.insert(t as u32, &p, start);
-        let q = Quadric::plane(p);
-        for &v in &tri {
-            s.star[v as usize].push(t as u32);
-            s.quadric[v as usize] = s.quadric[v as usize].add(&q);
-        }
-    }
+    let n = mesh.positions.len();
+    let mut s = State::new(mesh, opts);
     let mut heap = BinaryHeap::with_capacity(3 * t_count / 2);
     for tri in &s.tris {
         for k in 0..3 {
@@ -398,6 +378,38 @@ fn park(parked: &mut HashMap<u32, Vec<u32>>, a: u32, b: u32) {
 }
 
 impl State {
+    /// Stars, quadrics and the triangle hash of `mesh`.
+    fn new(mesh: Mesh, opts: SimplifyOptions) -> State {
+        let n = mesh.positions.len();
+        let t_count = mesh.triangles.len();
+        let mut s = State {
+            hash: TriangleHash::new(HASH_CELL),
+            opts,
+            pos: mesh.positions,
+            tris: mesh.triangles,
+            tri_alive: vec![true; t_count],
+            star: vec![Vec::new(); n],
+            vert_alive: vec![true; n],
+            version: vec![0; n],
+            quadric: vec![Quadric::default(); n],
+            live_tris: t_count,
+            stats: SimplifyStats::default(),
+        };
+        for t in 0..t_count {
+            let tri = s.tris[t];
+            let (tris, pos) = (&s.tris, &s.pos);
+            let p = tri.map(|i| pos[i as usize]);
+            let start = |u: u32| Some(tris[u as usize].map(|x| pos[x as usize]));
+            s.hash.insert(t as u32, &p, start);
+            let q = Quadric::plane(p);
+            for &v in &tri {
+                s.star[v as usize].push(t as u32);
+                s.quadric[v as usize] = s.quadric[v as usize].add(&q);
+            }
+        }
+        s
+    }
+
     /// Pushes the parked edges at `v` back onto the heap (those still edges, except the one to
     /// `fresh`, whose candidate is already new) and unparks them under both endpoints.
     fn retry_parked(
@@ -587,6 +599,48 @@ impl State {
                 return Err(Reject::Flip);
             }
         }
+        let renamed =
+            |t: u32| self.tris[t as usize].map(|x| if x as usize == b { a as u32 } else { x });
+        let new: Vec<([u32; 3], [DVec3; 3])> =
+            changed.iter().map(|(t, q)| (renamed(*t), *q)).collect();
+        let qv = self.quadric[a].add(&self.quadric[b]);
+        let fresh = na
+            .iter()
+            .chain(&nb)
+            .copied()
+            .filter(|&x| x != a && x != b)
+            .collect::<std::collections::BTreeSet<usize>>()
+            .into_iter()
+            .map(|x| (x as u32, cheapest(&qv, v, &self.quadric[x], self.pos[x]).0))
+            .collect();
+        let in_plane = self.keeps_surface(a, b, v);
+        if !in_plane {
+            self.geometry_holds(prox, v, &around, &old, &changed, &new)?;
+        }
+        Ok(Plan {
+            a,
+            b,
+            v,
+            shared,
+            changed,
+            new,
+            fresh,
+            in_plane,
+        })
+    }
+
+    /// The band, sweep and self-intersection checks of a collapse to `v`: `around` the
+    /// triangles around the edge (sorted) at their `old` places, `changed` the survivors at
+    /// their new places, `new` the same with their ids after the collapse.
+    fn geometry_holds(
+        &self,
+        prox: &mut Proximity,
+        v: DVec3,
+        around: &[u32],
+        old: &[[DVec3; 3]],
+        changed: &[(u32, [DVec3; 3])],
+        new: &[([u32; 3], [DVec3; 3])],
+    ) -> Result<(), Reject> {
         // Tolerance band for the new surface; the new vertex first, the likeliest to be out.
         let (eps, r_min) = (self.opts.eps, self.opts.min_radius);
         if prox.distance(v).0 > eps
@@ -599,17 +653,13 @@ impl State {
         // The region swept by the collapse: the tetrahedra (old triangle, v) must hold no point
         // of W deeper than eps_sweep, hence no point of the swept volume.
         let es = self.opts.eps_sweep;
-        for p in &old {
+        for p in old {
             if !prox.tetrahedron_shallow([p[0], p[1], p[2], v], es, r_min) {
                 return Err(Reject::Sweep);
             }
         }
         // No self-intersection: each new triangle against the other live triangles near it and
         // against the other new ones (ids as after the collapse: b becomes a).
-        let renamed =
-            |t: u32| self.tris[t as usize].map(|x| if x as usize == b { a as u32 } else { x });
-        let new: Vec<([u32; 3], [DVec3; 3])> =
-            changed.iter().map(|(t, q)| (renamed(*t), *q)).collect();
         let fan: Vec<DVec3> = new.iter().flat_map(|(_, q)| *q).collect();
         let fan_box = bounds(&fan);
         let mut near = Vec::new();
@@ -629,25 +679,113 @@ impl State {
                 return Err(Reject::Intersection);
             }
         }
-        let qv = self.quadric[a].add(&self.quadric[b]);
-        let fresh = na
-            .iter()
-            .chain(&nb)
-            .copied()
-            .filter(|&x| x != a && x != b)
-            .collect::<std::collections::BTreeSet<usize>>()
-            .into_iter()
-            .map(|x| (x as u32, cheapest(&qv, v, &self.quadric[x], self.pos[x]).0))
-            .collect();
-        Ok(Plan {
-            a,
-            b,
-            v,
-            shared,
-            changed,
-            new,
-            fresh,
-        })
+        Ok(())
+    }
+
+    /// Whether collapsing (a, b) to `v` leaves the surface the same point set, so that the
+    /// band, sweep and intersection checks hold without being run (the flip check has passed:
+    /// no new triangle is degenerate or turned against its old normal).
+    ///
+    /// So it is when v is one endpoint, k, and the other, m, is flat or on a straight crease
+    /// through k:
+    /// - flat: m's triangles lie in one plane, facing the same way, winding once around m
+    ///   (angles summing to 2π). They tile the polygon L of their outer edges, star-shaped from
+    ///   m; after the collapse the fan from k over the same outer edges has boundary L as well,
+    ///   and with every new triangle facing the plane's way, the number of new triangles over a
+    ///   point is L's winding number there: they tile L exactly;
+    /// - crease: m's triangles lie in two planes, both through k, each plane's triangles
+    ///   contiguous around m with angles summing to π, and the two crease edges are (m, k) and
+    ///   (m, k') with m strictly between k and k'. Each plane's half is then a polygon whose
+    ///   corner at m is straight (on the segment k k'), and the same argument tiles it with the
+    ///   fan from k.
+    ///
+    /// Nothing moves: every point of W and of the swept volume stays on its side, and no new
+    /// crossing can arise. (In an embedded mesh "k lies in every plane of m's triangles" already
+    /// forces one of the two shapes; the walk checks them rather than rely on that.)
+    ///
+    /// Exact: only for integer coordinates below 2^15 in magnitude (voxel corners, and
+    /// endpoints chosen by earlier collapses like this one). Then the normals' components
+    /// (< 2^33) and the plane tests n·(x - o) (< 2^51) are exact in f64. The angle sums are
+    /// rounded, but π and 2π are far from the other multiples of π they could be.
+    fn keeps_surface(&self, a: usize, b: usize, v: DVec3) -> bool {
+        let (m, k) = if v == self.pos[a] {
+            (b, a)
+        } else if v == self.pos[b] {
+            (a, b)
+        } else {
+            return false;
+        };
+        let lattice = |p: &DVec3| {
+            p.to_array()
+                .iter()
+                .all(|x| x.fract() == 0.0 && x.abs() < 32768.0)
+        };
+        let (o, pk) = (self.pos[m], self.pos[k]);
+        // m's triangles in order around m, starting with the one whose link edge leaves k:
+        // (link edge p -> q, positions of the triangle, its normal).
+        let star = &self.star[m];
+        let mut fan: Vec<(u32, u32, [DVec3; 3], DVec3)> = Vec::with_capacity(star.len());
+        for &t in star {
+            let tri = self.tris[t as usize];
+            let p = tri.map(|x| self.pos[x as usize]);
+            if !p.iter().all(lattice) {
+                return false;
+            }
+            let i = tri
+                .iter()
+                .position(|&x| x as usize == m)
+                .expect("m in its star");
+            let n = (p[1] - p[0]).cross(p[2] - p[0]);
+            // k must lie in every plane of m's triangles.
+            if n == DVec3::ZERO || n.dot(pk - o) != 0.0 {
+                return false;
+            }
+            fan.push((tri[(i + 1) % 3], tri[(i + 2) % 3], p, n));
+        }
+        let mut at = k as u32;
+        for i in 0..fan.len() {
+            let Some(j) = (i..fan.len()).find(|&j| fan[j].0 == at) else {
+                return false;
+            };
+            fan.swap(i, j);
+            at = fan[i].1;
+        }
+        if at != k as u32 {
+            return false;
+        }
+        // Walk around: a plane change between consecutive triangles happens at their common
+        // edge (m, q); sum the angles at m per plane.
+        let same_plane = |n: DVec3, p: &[DVec3; 3]| p.iter().all(|&x| n.dot(x - o) == 0.0);
+        let facing = |n: DVec3, u: DVec3| {
+            let j = u.abs().max_position();
+            n[j] * u[j] > 0.0
+        };
+        let mut changes = Vec::new();
+        let mut angles = [0.0f64; 2];
+        let mut plane = 0;
+        for i in 0..fan.len() {
+            let (p, q, _, n) = fan[i];
+            let (e1, e2) = (self.pos[p as usize] - o, self.pos[q as usize] - o);
+            angles[plane] += e1.cross(e2).length().atan2(e1.dot(e2));
+            let next = &fan[(i + 1) % fan.len()];
+            if !(same_plane(n, &next.2) && facing(n, next.3)) {
+                changes.push(q);
+                plane = 1 - plane;
+            }
+        }
+        let pi = std::f64::consts::PI;
+        match changes.as_slice() {
+            [] => (angles[0] - 2.0 * pi).abs() < 1e-6,
+            [k2, k1] if *k1 == k as u32 => {
+                let d = self.pos[*k2 as usize] - o;
+                let e = pk - o;
+                e.cross(d) == DVec3::ZERO
+                    && e.dot(d) < 0.0
+                    && (angles[0] - pi).abs() < 1e-6
+                    && (angles[1] - pi).abs() < 1e-6
+            }
+            _ => false,
+        }
     }
 
     /// Apply a checked plan unless its new triangles meet a triangle moved earlier in this batch
@@ -660,18 +798,24 @@ impl State {
             shared,
             changed,
             new,
+            in_plane,
             ..
         } = plan;
         // The same test against the triangles that earlier collapses of this batch moved, which
-        // `check` saw at their old places.
-        for (ti, q) in &new {
-            let mut pairs = batch_moved.iter().copied();
-            if pairs.any(|(ui, up)| boxes_meet(q, &up) && conflict(*ti, *q, ui, up)) {
-                self.stats.rejected_intersection += 1;
-                return false;
+        // `check` saw at their old places. A collapse in a plane covers the same points before
+        // and after, so it neither needs the test nor adds to it.
+        if in_plane {
+            self.stats.collapses_in_plane += 1;
+        } else {
+            for (ti, q) in &new {
+                let mut pairs = batch_moved.iter().copied();
+                if pairs.any(|(ui, up)| boxes_meet(q, &up) && conflict(*ti, *q, ui, up)) {
+                    self.stats.rejected_intersection += 1;
+                    return false;
+                }
             }
+            batch_moved.extend(new.iter().copied());
         }
-        batch_moved.extend(new.iter().copied());
 
         // Apply: b merges into a at v.
         for &t in &shared {
@@ -826,6 +970,90 @@ mod tests {
             keys.dedup();
             assert_eq!(keys.len(), n, "box to {hi:?}: duplicate triangles");
         }
+    }
+
+    /// Collapses that skip the geometric checks must leave the surface the same point set:
+    /// on a block and rough random voxel sets, every collapse `check` marks `in_plane` (flat vertices and
+    /// straight creases, to either endpoint) is applied, and the triangles around it before and
+    /// after cover the same points (dense samples of each on the other, equal areas).
+    #[test]
+    fn in_plane_collapses_keep_the_surface_point_set() {
+        let area = |t: &[DVec3; 3]| (t[1] - t[0]).cross(t[2] - t[0]).length() / 2.0;
+        let samples = |t: &[DVec3; 3]| {
+            let mut out = Vec::new();
+            for i in 0..=6 {
+                for j in 0..=6 - i {
+                    let (u, v) = (i as f64 / 6.0, j as f64 / 6.0);
+                    out.push(t[0] + (t[1] - t[0]) * u + (t[2] - t[0]) * v);
+                }
+            }
+            out
+        };
+        let covered = |p: DVec3, by: &[[DVec3; 3]]| {
+            by.iter()
+                .any(|t| crate::verify::geom::dist_triangle(p, t[0], t[1], t[2]) < 1e-9)
+        };
+        let (mut flat, mut crease) = (0, 0);
+        let block = boxed([14, 14, 14], [2.0, 2.0, 2.0], [12.0, 12.0, 12.0]);
+        let rough = (0..3).map(|seed| crate::voxel::test_support::random([14, 14, 14], seed));
+        for (seed, cls) in std::iter::once(block).chain(rough).enumerate() {
+            let mut s = State::new(extract(&cls), defaults());
+            let mut prox = Proximity::with_capacity(&cls, 1 << 12);
+            for round in 0..4 {
+                for t in 0..s.tris.len() {
+                    if !s.tri_alive[t] {
+                        continue;
+                    }
+                    let tri = s.tris[t];
+                    let (a, b) = (tri[round % 3] as usize, tri[(round + 1) % 3] as usize);
+                    let v = if round % 2 == 0 { s.pos[a] } else { s.pos[b] };
+                    let Ok(plan) = s.check(&mut prox, a, b, v) else {
+                        continue;
+                    };
+                    if !plan.in_plane {
+                        continue;
+                    }
+                    let moving = if v == s.pos[a] { b } else { a };
+                    let t0 = s.tris[s.star[moving][0] as usize].map(|x| s.pos[x as usize]);
+                    let n0 = (t0[1] - t0[0]).cross(t0[2] - t0[0]);
+                    let is_flat = s.star[moving].iter().all(|&u| {
+                        s.tris[u as usize]
+                            .iter()
+                            .all(|&x| n0.dot(s.pos[x as usize] - t0[0]) == 0.0)
+                    });
+                    if is_flat {
+                        flat += 1;
+                    } else {
+                        crease += 1;
+                    }
+                    let mut around: Vec<u32> =
+                        s.star[a].iter().chain(&s.star[b]).copied().collect();
+                    around.sort_unstable();
+                    around.dedup();
+                    let before: Vec<[DVec3; 3]> = around
+                        .iter()
+                        .map(|&u| s.tris[u as usize].map(|x| s.pos[x as usize]))
+                        .collect();
+                    assert!(s.commit(plan, &mut Vec::new()));
+                    let after: Vec<[DVec3; 3]> = around
+                        .iter()
+                        .filter(|&&u| s.tri_alive[u as usize])
+                        .map(|&u| s.tris[u as usize].map(|x| s.pos[x as usize]))
+                        .collect();
+                    for (from, to) in [(&before, &after), (&after, &before)] {
+                        for t in from.iter() {
+                            for p in samples(t) {
+                                assert!(covered(p, to), "seed {seed}: {p} left uncovered");
+                            }
+                        }
+                    }
+                    let (a0, a1): (f64, f64) =
+                        (before.iter().map(area).sum(), after.iter().map(area).sum());
+                    assert!((a0 - a1).abs() < 1e-9 * a0, "area {a0} -> {a1}");
+                }
+            }
+        }
+        assert!(flat > 100 && crease > 100, "flat {flat}, crease {crease}");
     }
 
     #[test]
