@@ -328,10 +328,16 @@ impl TriangleHash {
                         continue;
                     }
                     let ids = self.cells.entry(Self::key([i, j, k])).or_default();
-                    if ids.len() >= PRUNE_AT {
+                    // Prune only when the list is full (about to reallocate), and grow it when
+                    // pruning frees less than a quarter: amortized O(1) per insert even in
+                    // cells that hold many live triangles.
+                    if ids.len() >= PRUNE_AT && ids.len() == ids.capacity() {
                         ids.retain(|&u| {
                             current(u).is_some_and(|p| bounds_meet(bounds(&p), (clo, chi)))
                         });
+                        if ids.len() * 4 > ids.capacity() * 3 {
+                            ids.reserve(ids.capacity());
+                        }
                     }
                     if !ids.contains(&id) {
                         ids.push(id);
@@ -342,7 +348,8 @@ impl TriangleHash {
     }
 
     /// Ids whose cells meet the box of `t`'s points (a superset of the live triangles near
-    /// them; dead ids may remain), sorted, unique.
+    /// them; dead ids may remain), with repeats (one per cell: callers filter first, then
+    /// dedup the few left).
     pub fn near(&self, t: &[DVec3], out: &mut Vec<u32>) {
         out.clear();
         let (lo, hi) = self.cell_range(t);
@@ -355,8 +362,6 @@ impl TriangleHash {
                 }
             }
         }
-        out.sort_unstable();
-        out.dedup();
     }
 }
 

@@ -16,7 +16,7 @@
 //! triangle count stops early. Units: grid units (one voxel edge = 1).
 
 use std::cmp::Ordering;
-use std::collections::{BinaryHeap, HashMap};
+use std::collections::{BinaryHeap, HashMap, VecDeque};
 use std::sync::Mutex;
 
 use rayon::prelude::*;
@@ -180,6 +180,44 @@ impl Ord for Candidate {
     }
 }
 
+/// Candidates, cheapest first. Those of cost 0 (flat regions and straight creases: most of the
+/// start) wait in a FIFO, first in the scattered tie order, then in the order they arise; the
+/// rest in a binary heap. Saves the heap's ~20-level sift per pop for them.
+struct Queue {
+    zero: VecDeque<Candidate>,
+    heap: BinaryHeap<Candidate>,
+}
+
+impl Queue {
+    fn new(mut all: Vec<Candidate>) -> Queue {
+        let split = partition_by(&mut all, |c| c.cost == 0.0);
+        let rest = all.split_off(split);
+        all.sort_unstable_by_key(Candidate::scatter);
+        let mut zero = VecDeque::from(all);
+        zero.reserve(zero.len() / 2);
+        Queue {
+            zero,
+            heap: BinaryHeap::from(rest),
+        }
+    }
+
+    fn pop(&mut self) -> Option<Candidate> {
+        self.zero.pop_front().or_else(|| self.heap.pop())
+    }
+}
+
+/// Reorders `v` so that the elements for which `pred` holds come first; returns their count.
+fn partition_by<T>(v: &mut [T], pred: impl Fn(&T) -> bool) -> usize {
+    let mut split = 0;
+    for i in 0..v.len() {
+        if pred(&v[i]) {
+            v.swap(split, i);
+            split += 1;
+        }
+    }
+    split
+}
+
 /// A collapse that passed [`State::check`]: b merges into a at v.
 struct Plan {
     a: usize,
@@ -240,15 +278,16 @@ pub fn simplify_until(
     let t_count = mesh.triangles.len();
     let n = mesh.positions.len();
     let mut s = State::new(mesh, opts);
-    let mut heap = BinaryHeap::with_capacity(3 * t_count / 2);
+    let mut all = Vec::with_capacity(3 * t_count / 2);
     for tri in &s.tris {
         for k in 0..3 {
             let (a, b) = (tri[k], tri[(k + 1) % 3]);
             if a < b {
-                heap.push(s.candidate(a, b));
+                all.push(s.candidate(a, b));
             }
         }
     }
+    let mut heap = Queue::new(all);
     // One distance memo per worker thread, kept across batches.
     // Sized for the voxels near the surface: about two per start triangle.
     let proxes: Vec<Mutex<Proximity>> = (0..rayon::current_num_threads())
@@ -415,7 +454,7 @@ impl State {
     fn retry_parked(
         &self,
         parked: &mut HashMap<u32, Vec<u32>>,
-        heap: &mut BinaryHeap<Candidate>,
+        heap: &mut Queue,
         v: u32,
         fresh: u32,
     ) {
@@ -439,17 +478,29 @@ impl State {
         self.vert_alive[a] && self.vert_alive[b] && self.version[a] + self.version[b] == c.ver
     }
 
-    /// Pushes `c`; a full heap first drops its stale entries rather than growing (they are
+    /// Pushes `c`; a full queue first drops its stale entries rather than growing (they are
     /// most of it: every collapse makes the entries at its kept vertex stale), and grows only
     /// when that frees less than a quarter.
-    fn push(&self, heap: &mut BinaryHeap<Candidate>, c: Candidate) {
-        if heap.len() == heap.capacity() {
-            heap.retain(|c| self.is_current(c));
-            if heap.len() * 4 > heap.capacity() * 3 {
-                heap.reserve(heap.capacity());
+    fn push(&self, queue: &mut Queue, c: Candidate) {
+        if c.cost == 0.0 {
+            let zero = &mut queue.zero;
+            if zero.len() == zero.capacity() {
+                zero.retain(|c| self.is_current(c));
+                if zero.len() * 4 > zero.capacity() * 3 {
+                    zero.reserve(zero.capacity());
+                }
             }
+            zero.push_back(c);
+        } else {
+            let heap = &mut queue.heap;
+            if heap.len() == heap.capacity() {
+                heap.retain(|c| self.is_current(c));
+                if heap.len() * 4 > heap.capacity() * 3 {
+                    heap.reserve(heap.capacity());
+                }
+            }
+            heap.push(c);
         }
-        heap.push(c);
     }
 
     fn candidate(&self, a: u32, b: u32) -> Candidate {
@@ -664,15 +715,19 @@ impl State {
         let fan_box = bounds(&fan);
         let mut near = Vec::new();
         self.hash.near(&fan, &mut near);
-        let others: Vec<([u32; 3], [DVec3; 3])> = near
+        let mut others: Vec<(u32, [u32; 3], [DVec3; 3])> = near
             .iter()
             .filter(|u| self.tri_alive[**u as usize] && around.binary_search(u).is_err())
             .map(|&u| {
                 let ui = self.tris[u as usize];
-                (ui, ui.map(|x| self.pos[x as usize]))
+                (u, ui, ui.map(|x| self.pos[x as usize]))
             })
-            .filter(|(_, up)| bounds_meet(fan_box, bounds(up)))
+            .filter(|(_, _, up)| bounds_meet(fan_box, bounds(up)))
             .collect();
+        others.sort_unstable_by_key(|o| o.0);
+        others.dedup_by_key(|o| o.0);
+        let others: Vec<([u32; 3], [DVec3; 3])> =
+            others.into_iter().map(|(_, ui, up)| (ui, up)).collect();
         for (k, (ti, q)) in new.iter().enumerate() {
             let mut pairs = others.iter().chain(&new[k + 1..]).copied();
             if pairs.any(|(ui, up)| boxes_meet(q, &up) && conflict(*ti, *q, ui, up)) {
