@@ -190,14 +190,15 @@ struct Queue {
 
 impl Queue {
     fn new(mut all: Vec<Candidate>) -> Queue {
-        let split = partition_by(&mut all, |c| c.cost == 0.0);
-        let rest = all.split_off(split);
-        all.sort_unstable_by_key(Candidate::scatter);
-        let mut zero = VecDeque::from(all);
-        zero.reserve(zero.len() / 2);
+        // [costly | free]: the free ones move out, and the costly ones keep `all`'s memory,
+        // shrunk in place, so the queue holds no more than `all` did.
+        let split = partition_by(&mut all, |c| c.cost != 0.0);
+        let mut zero = all.split_off(split);
+        all.shrink_to_fit();
+        zero.sort_unstable_by_key(Candidate::scatter);
         Queue {
-            zero,
-            heap: BinaryHeap::from(rest),
+            zero: VecDeque::from(zero),
+            heap: BinaryHeap::from(all),
         }
     }
 
@@ -225,7 +226,8 @@ struct Plan {
     v: DVec3,
     /// The two triangles on the edge (they disappear).
     shared: Vec<u32>,
-    /// The surviving triangles around the edge with their new positions.
+    /// The surviving triangles around the edge that move, with their new positions (those that
+    /// stay keep their hash cells and cannot meet anything new).
     changed: Vec<(u32, [DVec3; 3])>,
     /// The same with their vertex ids after the collapse.
     new: Vec<([u32; 3], [DVec3; 3])>,
@@ -650,8 +652,19 @@ impl State {
                 return Err(Reject::Flip);
             }
         }
+        // Triangles of the kept endpoint's star that do not hold the other one stay where they
+        // are when v is that endpoint: they are already within the band and cross nothing, so
+        // only the moved ones are checked (against the unchanged ones too) and re-filed.
         let renamed =
             |t: u32| self.tris[t as usize].map(|x| if x as usize == b { a as u32 } else { x });
+        let stays =
+            |(t, q): &(u32, [DVec3; 3])| *q == self.tris[*t as usize].map(|x| self.pos[x as usize]);
+        let unchanged: Vec<([u32; 3], [DVec3; 3])> = changed
+            .iter()
+            .filter(|c| stays(c))
+            .map(|(t, q)| (renamed(*t), *q))
+            .collect();
+        changed.retain(|c| !stays(c));
         let new: Vec<([u32; 3], [DVec3; 3])> =
             changed.iter().map(|(t, q)| (renamed(*t), *q)).collect();
         let qv = self.quadric[a].add(&self.quadric[b]);
@@ -666,7 +679,7 @@ impl State {
             .collect();
         let in_plane = self.keeps_surface(a, b, v);
         if !in_plane {
-            self.geometry_holds(prox, v, &around, &old, &changed, &new)?;
+            self.geometry_holds(prox, v, &around, &old, &new, &unchanged)?;
         }
         Ok(Plan {
             a,
@@ -681,30 +694,35 @@ impl State {
     }
 
     /// The band, sweep and self-intersection checks of a collapse to `v`: `around` the
-    /// triangles around the edge (sorted) at their `old` places, `changed` the survivors at
-    /// their new places, `new` the same with their ids after the collapse.
+    /// triangles around the edge (sorted) at their `old` places, `new` the survivors that move
+    /// (ids after the collapse, new places), `unchanged` those that stay.
     fn geometry_holds(
         &self,
         prox: &mut Proximity,
         v: DVec3,
         around: &[u32],
         old: &[[DVec3; 3]],
-        changed: &[(u32, [DVec3; 3])],
         new: &[([u32; 3], [DVec3; 3])],
+        unchanged: &[([u32; 3], [DVec3; 3])],
     ) -> Result<(), Reject> {
         // Tolerance band for the new surface; the new vertex first, the likeliest to be out.
         let (eps, r_min) = (self.opts.eps, self.opts.min_radius);
         if prox.distance(v).0 > eps
-            || !changed
+            || !new
                 .iter()
                 .all(|(_, q)| prox.triangle_within(*q, eps, r_min))
         {
             return Err(Reject::Band);
         }
         // The region swept by the collapse: the tetrahedra (old triangle, v) must hold no point
-        // of W deeper than eps_sweep, hence no point of the swept volume.
+        // of W deeper than eps_sweep, hence no point of the swept volume. A tetrahedron with v
+        // at a corner of its triangle is that triangle, which lies within eps of ∂W (every live
+        // triangle does): no point of W deeper than eps <= eps_sweep.
         let es = self.opts.eps_sweep;
         for p in old {
+            if eps <= es && p.contains(&v) {
+                continue;
+            }
             if !prox.tetrahedron_shallow([p[0], p[1], p[2], v], es, r_min) {
                 return Err(Reject::Sweep);
             }
@@ -729,7 +747,7 @@ impl State {
         let others: Vec<([u32; 3], [DVec3; 3])> =
             others.into_iter().map(|(_, ui, up)| (ui, up)).collect();
         for (k, (ti, q)) in new.iter().enumerate() {
-            let mut pairs = others.iter().chain(&new[k + 1..]).copied();
+            let mut pairs = others.iter().chain(&new[k + 1..]).chain(unchanged).copied();
             if pairs.any(|(ui, up)| boxes_meet(q, &up) && conflict(*ti, *q, ui, up)) {
                 return Err(Reject::Intersection);
             }
