@@ -215,8 +215,8 @@ pub fn verify(opts: &VerifyOptions, progress: &dyn Progress) -> anyhow::Result<R
 
     // Beyond the limit: are those places filled pockets (hidden from all six axes)?
     let pockets = opts.bound.filter(|b| deviation.bound > *b).map(|b| {
-        progress.stage("pockets (mesh pieces beyond --bound)", 0);
-        pockets::classify(&parts, &mesh, b, spacing)
+        progress.stage("pockets (mesh triangles beyond --bound)", mesh.len() as u64);
+        pockets::classify(&parts, &mesh, b, spacing, progress)
     });
     let t6 = Instant::now();
 

@@ -23,7 +23,7 @@
 //! d - B'. Distances are to the posed *surfaces*; a ray that enters the solid crosses its
 //! surface, so it cannot pass through unnoticed.
 
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 
 use glam::DVec3;
 use rayon::prelude::*;
@@ -32,6 +32,7 @@ use serde::Serialize;
 use super::geom;
 use super::nearest::{self, Frames, Scratch};
 use super::poses::PosedPart;
+use super::Progress;
 
 /// Sphere-tracing steps per ray before the ray counts as undetermined.
 const MAX_STEPS: u32 = 20_000;
@@ -191,9 +192,17 @@ impl<'a> Tracer<'a> {
 /// from all six axes, or visible (a counterexample; the search stops at the first), or
 /// undetermined. A piece that cannot be settled splits 1:4, down to covering radius
 /// `spacing` / 2^EXTRA_LEVELS; counterexamples are looked for once pieces reach `spacing`.
-pub fn classify(parts: &[PosedPart], tris: &[[DVec3; 3]], bound: f64, spacing: f64) -> Pockets {
+pub fn classify(
+    parts: &[PosedPart],
+    tris: &[[DVec3; 3]],
+    bound: f64,
+    spacing: f64,
+    progress: &dyn Progress,
+) -> Pockets {
     let tracer = Tracer::new(parts);
     let stop = AtomicBool::new(false);
+    let done = AtomicU64::new(0);
+    let total = tris.len() as u64;
     let finest = finest(spacing);
     let mut out = tris
         .par_iter()
@@ -221,6 +230,10 @@ pub fn classify(parts: &[PosedPart], tris: &[[DVec3; 3]], bound: f64, spacing: f
                     }
                     Settled::Open => out.undetermined += 1,
                 }
+            }
+            let d = done.fetch_add(1, Ordering::Relaxed) + 1;
+            if d % 64 == 0 || d == total {
+                progress.advance(d, total);
             }
             out
         })
@@ -367,11 +380,23 @@ mod tests {
         // Hollow box surface [0,4]³: its centre is 2 from every face, so beyond B = 1, and every
         // axis ray meets a face. A point 2 outside the box has a ray straight away from it.
         let parts = [part(box_tris(DVec3::ZERO, DVec3::splat(4.0)))];
-        let p = classify(&parts, &[piece_at(DVec3::splat(2.0))], 1.0, 1e-3);
+        let p = classify(
+            &parts,
+            &[piece_at(DVec3::splat(2.0))],
+            1.0,
+            1e-3,
+            &crate::verify::Silent,
+        );
         assert_eq!((p.pieces_beyond, p.hidden, p.visible), (1, 1, 0), "{p:?}");
         assert!(p.holds());
 
-        let p = classify(&parts, &[piece_at(DVec3::new(6.0, 2.0, 2.0))], 1.0, 1e-3);
+        let p = classify(
+            &parts,
+            &[piece_at(DVec3::new(6.0, 2.0, 2.0))],
+            1.0,
+            1e-3,
+            &crate::verify::Silent,
+        );
         assert_eq!((p.hidden, p.visible, p.undetermined), (0, 1, 0), "{p:?}");
         let v = p.first_visible.as_ref().expect("a visible place");
         assert_eq!(v.direction, "+x");
@@ -390,7 +415,13 @@ mod tests {
         ));
         let parts = [part(tris)];
         // B = 0.5: the slot's middle is beyond it and sees out along y and z.
-        let p = classify(&parts, &[piece_at(DVec3::new(2.0, 5.0, 5.0))], 0.5, 1e-3);
+        let p = classify(
+            &parts,
+            &[piece_at(DVec3::new(2.0, 5.0, 5.0))],
+            0.5,
+            1e-3,
+            &crate::verify::Silent,
+        );
         assert_eq!(p.visible, 1, "{p:?}");
         let dir = p.first_visible.unwrap().direction;
         assert!(["+y", "-y", "+z", "-z"].contains(&dir.as_str()), "{dir}");
@@ -417,7 +448,13 @@ mod tests {
             DVec3::new(3.0, 10.0, 11.0),
         ));
         let parts = [part(tris)];
-        let p = classify(&parts, &[piece_at(DVec3::new(2.0, 5.0, 5.0))], 0.5, 1e-3);
+        let p = classify(
+            &parts,
+            &[piece_at(DVec3::new(2.0, 5.0, 5.0))],
+            0.5,
+            1e-3,
+            &crate::verify::Silent,
+        );
         assert_eq!((p.hidden, p.visible), (1, 0), "{p:?}");
     }
 
