@@ -179,10 +179,11 @@ impl<'a> Tracer<'a> {
                     Some((_, l)) => lower = l,
                 }
             }
-            // Within `lower - t` of q nothing is within t of a surface. Aim the next search's
-            // tolerance at a quarter of the clearance.
+            // Within `lower - t` of q every point is at least t from the surfaces, and strictly
+            // farther within a hair less. Aim the next search's tolerance at a quarter of the
+            // clearance.
             tol = 0.25 * (d - t);
-            along += lower - t;
+            along += (lower - t) * (1.0 - 1e-9);
         }
         (Ray::Undetermined, MAX_STEPS)
     }
