@@ -197,6 +197,30 @@ pub fn singular_bounds(m: [DVec3; 3]) -> (f64, f64) {
     (s_max, s_min)
 }
 
+/// The box [lo, hi] as 12 outward triangles (tests).
+#[cfg(test)]
+pub(crate) fn box_triangles(lo: DVec3, hi: DVec3) -> Vec<[DVec3; 3]> {
+    let v = |i: usize| {
+        DVec3::new(
+            if i & 1 == 0 { lo.x } else { hi.x },
+            if i & 2 == 0 { lo.y } else { hi.y },
+            if i & 4 == 0 { lo.z } else { hi.z },
+        )
+    };
+    let quads = [
+        [0, 2, 3, 1],
+        [4, 5, 7, 6],
+        [0, 1, 5, 4],
+        [2, 6, 7, 3],
+        [0, 4, 6, 2],
+        [1, 3, 7, 5],
+    ];
+    quads
+        .iter()
+        .flat_map(|q| [[v(q[0]), v(q[1]), v(q[2])], [v(q[0]), v(q[2]), v(q[3])]])
+        .collect()
+}
+
 /// Small deterministic generator for the verifier's tests (xorshift*, seed nonzero).
 #[cfg(test)]
 pub(crate) struct Rng(pub u64);

@@ -29,7 +29,7 @@ use containment::{Containment, Target};
 use deviation::Deviation;
 use health::Health;
 use pockets::Pockets;
-use poses::{PoseTree, PosedPart};
+use poses::PosedPart;
 use winding::Winding;
 
 /// Default finest covering radius: this fraction of the mesh's bounding-box diagonal.
@@ -159,19 +159,16 @@ pub fn verify(opts: &VerifyOptions, progress: &dyn Progress) -> anyhow::Result<R
         .iter()
         .zip(assigned)
         .map(|(part, part_poses)| {
-            let bvh = Bvh::build(poses::local_triangles(part), 1);
-            let root = &bvh.nodes[0];
-            let tree = PoseTree::build(&part_poses, root.centre, root.radius);
-            PosedPart {
-                node_index: part.node_index,
-                name: part
-                    .node_name
-                    .clone()
-                    .unwrap_or_else(|| format!("nodes[{}]", part.node_index)),
-                bvh,
-                poses: part_poses,
-                tree,
-            }
+            let name = part
+                .node_name
+                .clone()
+                .unwrap_or_else(|| format!("nodes[{}]", part.node_index));
+            PosedPart::new(
+                part.node_index,
+                name,
+                poses::local_triangles(part),
+                part_poses,
+            )
         })
         .collect();
     let (lo, hi) = mesh.iter().flatten().fold(

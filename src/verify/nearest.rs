@@ -288,9 +288,8 @@ fn box_gap(a_lo: DVec3, a_hi: DVec3, b_lo: DVec3, b_hi: DVec3) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::verify::bvh::Bvh;
     use crate::verify::geom::Rng;
-    use crate::verify::poses::{PartPose, PoseTree};
+    use crate::verify::poses::PartPose;
 
     /// A random part: `n` small triangles scattered in the unit cube, posed by `poses` random
     /// affine maps near a common one (vibration-like, every pose overlapping).
@@ -301,7 +300,6 @@ mod tests {
                 [c, c + 0.2 * rng.v(1.0), c + 0.2 * rng.v(1.0)]
             })
             .collect();
-        let bvh = Bvh::build(tris, 1);
         let base = DMat4::from_rotation_translation(
             glam::DQuat::from_axis_angle(rng.v(1.0).normalize(), 1.0),
             rng.v(1.0),
@@ -317,15 +315,7 @@ mod tests {
                 PartPose::new(base * jitter, None, None)
             })
             .collect();
-        let root = &bvh.nodes[0];
-        let tree = PoseTree::build(&poses, root.centre, root.radius);
-        PosedPart {
-            node_index: 0,
-            name: "part".into(),
-            bvh,
-            poses,
-            tree,
-        }
+        PosedPart::new(0, "part".into(), tris, poses)
     }
 
     fn brute_force(part: &PosedPart, p: DVec3) -> f64 {

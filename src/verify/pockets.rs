@@ -324,80 +324,41 @@ fn settle(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::verify::bvh::Bvh;
-    use crate::verify::poses::{PartPose, PoseTree};
+    use crate::verify::poses::PartPose;
+    use crate::verify::Silent;
     use glam::DMat4;
 
-    /// One part at one pose (identity): the given triangles.
-    fn part(tris: Vec<[DVec3; 3]>) -> PosedPart {
-        let bvh = Bvh::build(tris, 1);
-        let poses = vec![PartPose::new(DMat4::IDENTITY, Some(0), Some(2))];
-        let root = &bvh.nodes[0];
-        let tree = PoseTree::build(&poses, root.centre, root.radius);
-        PosedPart {
-            node_index: 0,
-            name: "p".into(),
-            bvh,
-            poses,
-            tree,
-        }
-    }
-
-    /// The six faces of the box [lo, hi] as 12 triangles (orientation irrelevant here).
-    fn box_tris(lo: DVec3, hi: DVec3) -> Vec<[DVec3; 3]> {
-        let c = |i: u32| {
-            DVec3::new(
-                if i & 1 == 0 { lo.x } else { hi.x },
-                if i & 2 == 0 { lo.y } else { hi.y },
-                if i & 4 == 0 { lo.z } else { hi.z },
-            )
-        };
-        let quads = [
-            [0, 2, 6, 4],
-            [1, 3, 7, 5],
-            [0, 1, 5, 4],
-            [2, 3, 7, 6],
-            [0, 1, 3, 2],
-            [4, 5, 7, 6],
-        ];
-        quads
+    /// One part at one pose (identity): the triangles of the boxes [lo, hi].
+    fn boxes(list: &[([f64; 3], [f64; 3])]) -> [PosedPart; 1] {
+        let tris = list
             .iter()
-            .flat_map(|q| [[c(q[0]), c(q[1]), c(q[2])], [c(q[0]), c(q[2]), c(q[3])]])
-            .collect()
+            .flat_map(|(lo, hi)| geom::box_triangles(DVec3::from(*lo), DVec3::from(*hi)))
+            .collect();
+        let poses = vec![PartPose::new(DMat4::IDENTITY, Some(0), Some(2))];
+        [PosedPart::new(0, "p".into(), tris, poses)]
     }
 
-    /// A tiny triangle around `p` (a mesh piece of radius ~1e-4).
-    fn piece_at(p: DVec3) -> [DVec3; 3] {
-        let e = 1e-4;
-        [
+    /// Classify one tiny mesh piece (radius ~1e-4) around `p` against `bound`.
+    fn classify_at(parts: &[PosedPart], p: [f64; 3], bound: f64) -> Pockets {
+        let (p, e) = (DVec3::from(p), 1e-4);
+        let piece = [
             p + DVec3::new(e, 0.0, 0.0),
             p + DVec3::new(-e, e, 0.0),
             p + DVec3::new(-e, -e, 0.0),
-        ]
+        ];
+        classify(parts, &[piece], bound, 1e-3, &Silent)
     }
 
     #[test]
     fn a_point_inside_a_closed_box_is_hidden_and_one_outside_is_visible() {
         // Hollow box surface [0,4]³: its centre is 2 from every face, so beyond B = 1, and every
         // axis ray meets a face. A point 2 outside the box has a ray straight away from it.
-        let parts = [part(box_tris(DVec3::ZERO, DVec3::splat(4.0)))];
-        let p = classify(
-            &parts,
-            &[piece_at(DVec3::splat(2.0))],
-            1.0,
-            1e-3,
-            &crate::verify::Silent,
-        );
+        let parts = boxes(&[([0.0; 3], [4.0; 3])]);
+        let p = classify_at(&parts, [2.0; 3], 1.0);
         assert_eq!((p.pieces_beyond, p.hidden, p.visible), (1, 1, 0), "{p:?}");
         assert!(p.holds());
 
-        let p = classify(
-            &parts,
-            &[piece_at(DVec3::new(6.0, 2.0, 2.0))],
-            1.0,
-            1e-3,
-            &crate::verify::Silent,
-        );
+        let p = classify_at(&parts, [6.0, 2.0, 2.0], 1.0);
         assert_eq!((p.hidden, p.visible, p.undetermined), (0, 1, 0), "{p:?}");
         let v = p.first_visible.as_ref().expect("a visible place");
         assert_eq!(v.direction, "+x");
@@ -409,52 +370,26 @@ mod tests {
     fn a_slot_open_along_one_axis_is_visible_only_through_that_axis() {
         // Two slabs x in [0,1] and [3,4] (y, z in [0,10]) leave a slot between them, open
         // along ±y and ±z. The slot's middle (2, 5, 5) is 1 from both slabs.
-        let mut tris = box_tris(DVec3::ZERO, DVec3::new(1.0, 10.0, 10.0));
-        tris.extend(box_tris(
-            DVec3::new(3.0, 0.0, 0.0),
-            DVec3::new(4.0, 10.0, 10.0),
-        ));
-        let parts = [part(tris)];
+        let slabs = [
+            ([0.0, 0.0, 0.0], [1.0, 10.0, 10.0]),
+            ([3.0, 0.0, 0.0], [4.0, 10.0, 10.0]),
+        ];
         // B = 0.5: the slot's middle is beyond it and sees out along y and z.
-        let p = classify(
-            &parts,
-            &[piece_at(DVec3::new(2.0, 5.0, 5.0))],
-            0.5,
-            1e-3,
-            &crate::verify::Silent,
-        );
+        let p = classify_at(&boxes(&slabs), [2.0, 5.0, 5.0], 0.5);
         assert_eq!(p.visible, 1, "{p:?}");
         let dir = p.first_visible.unwrap().direction;
         assert!(["+y", "-y", "+z", "-z"].contains(&dir.as_str()), "{dir}");
         // Closing the slot's ends with caps along y and z hides it.
-        let mut tris = box_tris(DVec3::ZERO, DVec3::new(1.0, 10.0, 10.0));
-        tris.extend(box_tris(
-            DVec3::new(3.0, 0.0, 0.0),
-            DVec3::new(4.0, 10.0, 10.0),
-        ));
-        tris.extend(box_tris(
-            DVec3::new(1.0, -1.0, 0.0),
-            DVec3::new(3.0, 0.0, 10.0),
-        ));
-        tris.extend(box_tris(
-            DVec3::new(1.0, 10.0, 0.0),
-            DVec3::new(3.0, 11.0, 10.0),
-        ));
-        tris.extend(box_tris(
-            DVec3::new(1.0, 0.0, -1.0),
-            DVec3::new(3.0, 10.0, 0.0),
-        ));
-        tris.extend(box_tris(
-            DVec3::new(1.0, 0.0, 10.0),
-            DVec3::new(3.0, 10.0, 11.0),
-        ));
-        let parts = [part(tris)];
-        let p = classify(
-            &parts,
-            &[piece_at(DVec3::new(2.0, 5.0, 5.0))],
+        let caps = [
+            ([1.0, -1.0, 0.0], [3.0, 0.0, 10.0]),
+            ([1.0, 10.0, 0.0], [3.0, 11.0, 10.0]),
+            ([1.0, 0.0, -1.0], [3.0, 10.0, 0.0]),
+            ([1.0, 0.0, 10.0], [3.0, 10.0, 11.0]),
+        ];
+        let p = classify_at(
+            &boxes(&[&slabs[..], &caps[..]].concat()),
+            [2.0, 5.0, 5.0],
             0.5,
-            1e-3,
-            &crate::verify::Silent,
         );
         assert_eq!((p.hidden, p.visible), (1, 0), "{p:?}");
     }
@@ -471,7 +406,8 @@ mod tests {
             let c = rng.v(8.0);
             tris.push([c, c + rng.v(0.6), c + rng.v(0.6)]);
         }
-        let parts = [part(tris.clone())];
+        let poses = vec![PartPose::new(DMat4::IDENTITY, Some(0), Some(2))];
+        let parts = [PosedPart::new(0, "p".into(), tris.clone(), poses)];
         let tracer = Tracer::new(&parts);
         let mut s = Scratch::default();
         let t = 0.3;

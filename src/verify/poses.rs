@@ -51,6 +51,28 @@ pub struct PosedPart {
     pub tree: PoseTree,
 }
 
+impl PosedPart {
+    /// A part from its local triangles and poses: builds the BVH (one triangle per leaf) and
+    /// the pose tree around its root ball.
+    pub fn new(
+        node_index: usize,
+        name: String,
+        tris: Vec<[DVec3; 3]>,
+        poses: Vec<PartPose>,
+    ) -> PosedPart {
+        let bvh = Bvh::build(tris, 1);
+        let root = &bvh.nodes[0];
+        let tree = PoseTree::build(&poses, root.centre, root.radius);
+        PosedPart {
+            node_index,
+            name,
+            bvh,
+            poses,
+            tree,
+        }
+    }
+}
+
 /// Pair every part with its poses: without a `node` column every row moves every part; with
 /// it each row moves the one part of that name and parts no row names stay once where they are.
 pub fn assign(

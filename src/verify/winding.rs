@@ -92,19 +92,7 @@ mod tests {
 
     /// A closed, outward unit cube as 12 triangles, and an open copy without one triangle.
     fn cube() -> Vec<[DVec3; 3]> {
-        let v = |i: usize| DVec3::new((i & 1) as f64, ((i >> 1) & 1) as f64, (i >> 2) as f64);
-        let quads = [
-            [0, 2, 3, 1],
-            [4, 5, 7, 6],
-            [0, 1, 5, 4],
-            [2, 6, 7, 3],
-            [0, 4, 6, 2],
-            [1, 3, 7, 5],
-        ];
-        quads
-            .iter()
-            .flat_map(|q| [[v(q[0]), v(q[1]), v(q[2])], [v(q[0]), v(q[2]), v(q[3])]])
-            .collect()
+        geom::box_triangles(DVec3::ZERO, DVec3::ONE)
     }
 
     fn exact(tris: &[[DVec3; 3]], p: DVec3) -> f64 {
