@@ -51,7 +51,8 @@ pub struct SimplifyOptions {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 pub struct SimplifyStats {
     pub collapses: u64,
-    /// Collapses that kept the surface's point set (flat vertices merged along their plane).
+    /// Collapses that kept the surface's point set (flat or straight-crease vertices merged
+    /// along it: [`State::keeps_surface`]).
     pub collapses_in_plane: u64,
     pub rejected_topology: u64,
     pub rejected_flip: u64,
@@ -659,14 +660,15 @@ impl State {
             |t: u32| self.tris[t as usize].map(|x| if x as usize == b { a as u32 } else { x });
         let stays =
             |(t, q): &(u32, [DVec3; 3])| *q == self.tris[*t as usize].map(|x| self.pos[x as usize]);
-        let unchanged: Vec<([u32; 3], [DVec3; 3])> = changed
-            .iter()
-            .filter(|c| stays(c))
-            .map(|(t, q)| (renamed(*t), *q))
-            .collect();
-        changed.retain(|c| !stays(c));
+        let (unchanged, changed): (Vec<_>, Vec<_>) = changed.into_iter().partition(stays);
+        let unchanged: Vec<([u32; 3], [DVec3; 3])> =
+            unchanged.iter().map(|(t, q)| (renamed(*t), *q)).collect();
         let new: Vec<([u32; 3], [DVec3; 3])> =
             changed.iter().map(|(t, q)| (renamed(*t), *q)).collect();
+        let in_plane = self.keeps_surface(a, b, v);
+        if !in_plane {
+            self.geometry_holds(prox, v, &around, &old, &new, &unchanged)?;
+        }
         let qv = self.quadric[a].add(&self.quadric[b]);
         let fresh = na
             .iter()
@@ -677,10 +679,6 @@ impl State {
             .into_iter()
             .map(|x| (x as u32, cheapest(&qv, v, &self.quadric[x], self.pos[x]).0))
             .collect();
-        let in_plane = self.keeps_surface(a, b, v);
-        if !in_plane {
-            self.geometry_holds(prox, v, &around, &old, &new, &unchanged)?;
-        }
         Ok(Plan {
             a,
             b,
