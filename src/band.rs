@@ -188,8 +188,16 @@ impl<'c> Proximity<'c> {
 
     /// dist(p, ∂W) when it is below [`REACH`], else REACH; and whether p's voxel is inside W.
     pub fn distance(&mut self, p: DVec3) -> (f64, bool) {
+        let near = self.nearest(p);
+        (near.dist, near.inside)
+    }
+
+    /// What [`Self::distance`] gives, with p's voxel and the other-class voxel nearest to p
+    /// (None when none is within [`REACH`]).
+    fn nearest(&mut self, p: DVec3) -> Near {
         let v = p.floor();
-        let entry = self.entry([v.x as isize, v.y as isize, v.z as isize]);
+        let home = [v.x as isize, v.y as isize, v.z as isize];
+        let entry = self.entry(home);
         // Squared gaps per axis from p to the cubes at offsets -2..=2 (local coordinate l).
         let gaps = |l: f64| {
             let (a, b) = (1.0 - l, 2.0 - l);
@@ -197,14 +205,23 @@ impl<'c> Proximity<'c> {
         };
         let l = p - v; // in [0, 1)³
         let (gx, gy, gz) = (gaps(l.x), gaps(l.y), gaps(l.z));
-        let mut best = REACH * REACH;
+        let (mut best, mut other) = (REACH * REACH, None);
         let mut bits = entry & OPPOSITE_BITS;
         while bits != 0 {
             let [i, j, k] = BLOCK[bits.trailing_zeros() as usize];
             bits &= bits - 1;
-            best = best.min(gx[i as usize] + gy[j as usize] + gz[k as usize]);
+            let d2 = gx[i as usize] + gy[j as usize] + gz[k as usize];
+            if d2 < best {
+                best = d2;
+                other = Some([i, j, k]);
+            }
         }
-        (best.sqrt(), entry >> INSIDE_BIT & 1 == 1)
+        Near {
+            dist: best.sqrt(),
+            inside: entry >> INSIDE_BIT & 1 == 1,
+            home,
+            other: other.map(|o| std::array::from_fn(|a| home[a] + o[a] as isize - 2)),
+        }
     }
 
     /// Whether `points` lie in one grid plane x_a = k (k an integer) and every unit square of that
@@ -253,14 +270,14 @@ impl<'c> Proximity<'c> {
     }
 
     /// Adaptive refinement shared by the region tests. Each piece (centroid c, circumradius R
-    /// about c, so the piece lies in the ball B(c, R)) gets `judge(piece, R, dist(c), c inside
-    /// W)`: pass, fail, or refine. A piece to refine with R < `r_min`, or more than
-    /// [`NODE_BUDGET`] pieces in all, fails the region (not shown: always sound).
+    /// about c, so the piece lies in the ball B(c, R)) gets `judge(piece, R, nearest(c))`: pass,
+    /// fail, or refine. A piece to refine with R < `r_min`, or more than [`NODE_BUDGET`] pieces
+    /// in all, fails the region (not shown: always sound).
     fn refine<const N: usize>(
         &mut self,
         start: [DVec3; N],
         r_min: f64,
-        mut judge: impl FnMut(&Self, &[DVec3; N], f64, f64, bool) -> Verdict,
+        mut judge: impl FnMut(&Self, &[DVec3; N], f64, &Near) -> Verdict,
         split: impl Fn(&[DVec3; N], &mut Vec<[DVec3; N]>),
     ) -> bool {
         let mut stack = vec![start];
@@ -272,8 +289,8 @@ impl<'c> Proximity<'c> {
             }
             let c = piece.iter().sum::<DVec3>() / N as f64;
             let r = piece.iter().map(|x| (*x - c).length()).fold(0.0, f64::max);
-            let (d, inside) = self.distance(c);
-            match judge(self, &piece, r, d, inside) {
+            let near = self.nearest(c);
+            match judge(self, &piece, r, &near) {
                 Verdict::Pass => {}
                 Verdict::Fail => return false,
                 Verdict::Refine if r < r_min => return false,
@@ -284,13 +301,28 @@ impl<'c> Proximity<'c> {
     }
 
     /// Whether every point of triangle `t` is within `limit` (< REACH) of ∂W. A piece passes
-    /// when dist(c) + R ≤ limit (distance is 1-Lipschitz) or when it lies on ∂W
-    /// ([`Self::on_boundary_plane`]); it fails when dist(c) > limit (c itself is out). Pieces
-    /// split into four at their edge midpoints. Sound: may reject, never wrongly accepts.
+    /// when
+    /// - dist(c) + R ≤ limit (distance is 1-Lipschitz), or
+    /// - its corners are within `limit` of both c's voxel and the other-class voxel nearest to
+    ///   c: a point of the piece in a voxel of c's class is within its distance to the latter of
+    ///   ∂W, one in a voxel of the other class within its distance to the former (a segment
+    ///   between cubes of different classes meets ∂W), and distances to cubes are convex, so at
+    ///   most `limit` over the piece when at most that at its corners; or
+    /// - it lies on ∂W ([`Self::on_boundary_plane`]).
+    ///
+    /// It fails when dist(c) > limit (c itself is out). Pieces split into four at their edge
+    /// midpoints. Sound: may reject, never wrongly accepts.
     pub fn triangle_within(&mut self, t: [DVec3; 3], limit: f64, r_min: f64) -> bool {
         debug_assert!(limit < REACH && r_min > 0.0);
-        let judge = |me: &Self, piece: &[DVec3; 3], r: f64, d: f64, _inside: bool| {
-            if d + r <= limit || (r > limit && me.on_boundary_plane(piece)) {
+        let judge = |me: &Self, piece: &[DVec3; 3], r: f64, near: &Near| {
+            let d = near.dist;
+            let hugged = |o: [isize; 3]| {
+                corners_within(piece, o, limit) && corners_within(piece, near.home, limit)
+            };
+            if d + r <= limit
+                || near.other.is_some_and(hugged)
+                || (r > limit && me.on_boundary_plane(piece))
+            {
                 Verdict::Pass
             } else if d > limit {
                 Verdict::Fail
@@ -315,14 +347,26 @@ impl<'c> Proximity<'c> {
     }
 
     /// Whether tetrahedron `t` misses every point inside W deeper than `limit` (< REACH) below
-    /// ∂W. A piece passes when dist(c) + R ≤ limit, when c lies outside W with dist(c) ≥ R (the
-    /// open ball then holds no point of W), or when it is flat on ∂W; it fails when c is inside
-    /// W deeper than `limit`. Pieces split in two at the midpoint of their longest edge. Sound:
-    /// may reject, never wrongly accepts.
+    /// ∂W. A piece passes when
+    /// - dist(c) + R ≤ limit, or
+    /// - c lies outside W with dist(c) ≥ R (the open ball then holds no point of W), or
+    /// - its corners are within `limit` of one outside voxel (c's own when c is outside, else
+    ///   the outside voxel nearest to c): a point of the piece inside W is within its distance
+    ///   to that voxel of ∂W, and that distance is convex, so at most `limit` over the piece, or
+    /// - it is flat on ∂W.
+    ///
+    /// It fails when c is inside W deeper than `limit`. Pieces split in two at the midpoint of
+    /// their longest edge. Sound: may reject, never wrongly accepts.
     pub fn tetrahedron_shallow(&mut self, t: [DVec3; 4], limit: f64, r_min: f64) -> bool {
         debug_assert!(limit < REACH && r_min > 0.0);
-        let judge = |me: &Self, piece: &[DVec3; 4], r: f64, d: f64, inside: bool| {
-            if d + r <= limit || (!inside && d >= r) || (r > limit && me.on_boundary_plane(piece)) {
+        let judge = |me: &Self, piece: &[DVec3; 4], r: f64, near: &Near| {
+            let (d, inside) = (near.dist, near.inside);
+            let outside_voxel = if inside { near.other } else { Some(near.home) };
+            if d + r <= limit
+                || (!inside && d >= r)
+                || outside_voxel.is_some_and(|o| corners_within(piece, o, limit))
+                || (r > limit && me.on_boundary_plane(piece))
+            {
                 Verdict::Pass
             } else if inside && d > limit {
                 Verdict::Fail
@@ -348,6 +392,24 @@ impl<'c> Proximity<'c> {
         };
         self.refine(t, r_min, judge, split)
     }
+}
+
+/// What [`Proximity::nearest`] finds about a point.
+struct Near {
+    /// dist(p, ∂W) when below [`REACH`], else REACH.
+    dist: f64,
+    /// Whether p's voxel is inside W.
+    inside: bool,
+    /// p's voxel.
+    home: [isize; 3],
+    /// The voxel of the other class nearest to p, when within [`REACH`].
+    other: Option<[isize; 3]>,
+}
+
+/// Whether every corner of a piece is within `limit` of voxel cube `v` (then every point of the
+/// piece is: the distance to a convex set is convex).
+fn corners_within<const N: usize>(piece: &[DVec3; N], v: [isize; 3], limit: f64) -> bool {
+    piece.iter().all(|p| dist_to_cube(*p, v) <= limit)
 }
 
 /// What [`Proximity::refine`] does with a piece.
