@@ -270,7 +270,7 @@ fn corners_overlap(p: DVec3, ab: [DVec3; 2], cd: [DVec3; 2], n: DVec3) -> bool {
 const PRUNE_AT: usize = 32;
 
 /// Triangle ids by the cells their bounding boxes meet (cells their plane misses by more than
-/// TOUCH left out), each id at most once per cell. A triangle that moves is inserted again under
+/// TOUCH left out), an id possibly more than once per cell until the cell is pruned. A triangle that moves is inserted again under
 /// its new cells, so every live triangle is found in each cell that holds a point within TOUCH
 /// of it; inserts prune the cells they touch.
 pub struct TriangleHash {
@@ -302,44 +302,60 @@ impl TriangleHash {
         (c[0] + 2) as u64 | ((c[1] + 2) as u64) << 21 | ((c[2] + 2) as u64) << 42
     }
 
-    /// Add `id` (positions `t`) under every cell its box meets that its plane comes within
-    /// TOUCH of (every cell for a degenerate triangle). A cell holding [`PRUNE_AT`] ids
-    /// or more first drops those that `current` says are gone or have moved away from it
-    /// (`current`: a triangle's positions now, None when it is gone).
-    pub fn insert(&mut self, id: u32, t: &[DVec3; 3], current: impl Fn(u32) -> Option<[DVec3; 3]>) {
+    /// The cells a triangle at `t` is filed under: those its box meets that its plane comes
+    /// within TOUCH of (every cell of the box for a degenerate triangle).
+    fn reach(&self, t: &[DVec3; 3]) -> Reach {
         let (lo, hi) = self.cell_range(t);
-        let cell = self.cell;
-        // A large tilted triangle's box spans many cells its plane never comes near: skip the
-        // cells whose box, widened by TOUCH, misses the plane. Sound for `near`: a point within
-        // TOUCH of the triangle lies in a cell the plane comes within TOUCH of.
         let n = (t[1] - t[0]).cross(t[2] - t[0]);
-        let (n_abs, offset) = (n.abs(), n.dot(t[0]));
-        let half = DVec3::splat(cell / 2.0 + TOUCH);
-        let slack = 1e-9 * (n_abs.dot(t[0].abs()) + n_abs.dot(half));
-        for k in lo[2]..=hi[2] {
-            for j in lo[1]..=hi[1] {
-                for i in lo[0]..=hi[0] {
-                    let (clo, chi) = (
-                        DVec3::new(i as f64, j as f64, k as f64) * cell,
-                        DVec3::new((i + 1) as f64, (j + 1) as f64, (k + 1) as f64) * cell,
-                    );
-                    let centre = (clo + chi) / 2.0;
-                    if (n.dot(centre) - offset).abs() > n_abs.dot(half) + slack {
+        let (n_abs, half) = (n.abs(), DVec3::splat(self.cell / 2.0 + TOUCH));
+        Reach {
+            lo,
+            hi,
+            cell: self.cell,
+            n,
+            offset: n.dot(t[0]),
+            margin: n_abs.dot(half) + 1e-9 * (n_abs.dot(t[0].abs()) + n_abs.dot(half)),
+        }
+    }
+
+    /// Add `id` (positions `t`) under every cell of its [`Self::reach`] not already reached from
+    /// `was`, where it was filed before (its cells hold it already). A full cell holding
+    /// [`PRUNE_AT`] ids or more first drops repeats and those that `current` says are gone or
+    /// have moved away from it (`current`: a triangle's positions now, None when it is gone).
+    pub fn insert(
+        &mut self,
+        id: u32,
+        t: &[DVec3; 3],
+        was: Option<&[DVec3; 3]>,
+        current: impl Fn(u32) -> Option<[DVec3; 3]>,
+    ) {
+        let now = self.reach(t);
+        let before = was.map(|w| self.reach(w));
+        let cell = self.cell;
+        for k in now.lo[2]..=now.hi[2] {
+            for j in now.lo[1]..=now.hi[1] {
+                for i in now.lo[0]..=now.hi[0] {
+                    let c = [i, j, k];
+                    if !now.meets(c) || before.as_ref().is_some_and(|r| r.meets(c)) {
                         continue;
                     }
-                    let ids = self.cells.entry(Self::key([i, j, k])).or_default();
+                    let ids = self.cells.entry(Self::key(c)).or_default();
                     // Prune only when the list is full (about to reallocate), and grow it when
                     // pruning frees less than a quarter: amortized O(1) per insert even in
-                    // cells that hold many live triangles.
+                    // cells that hold many live triangles. A triangle that left a cell and came
+                    // back may be pushed twice: pruning drops the repeats.
                     if ids.len() >= PRUNE_AT && ids.len() == ids.capacity() {
+                        let (clo, chi) = Reach::bounds(c, cell);
                         ids.retain(|&u| {
                             current(u).is_some_and(|p| bounds_meet(bounds(&p), (clo, chi)))
                         });
+                        ids.sort_unstable();
+                        ids.dedup();
                         if ids.len() * 4 > ids.capacity() * 3 {
                             ids.reserve(ids.capacity());
                         }
                     }
-                    if !ids.contains(&id) {
+                    if ids.last() != Some(&id) {
                         ids.push(id);
                     }
                 }
@@ -362,6 +378,37 @@ impl TriangleHash {
                 }
             }
         }
+    }
+}
+
+/// The cells a triangle is filed under ([`TriangleHash::reach`]).
+struct Reach {
+    lo: [i64; 3],
+    hi: [i64; 3],
+    cell: f64,
+    /// The triangle's (unnormalized) normal and n·t[0].
+    n: DVec3,
+    offset: f64,
+    /// How far n·x - offset may be from 0 at a cell's centre for its plane to come within
+    /// TOUCH of the cell, rounding included.
+    margin: f64,
+}
+
+impl Reach {
+    /// Cell `c`'s box (lo, hi).
+    fn bounds(c: [i64; 3], cell: f64) -> (DVec3, DVec3) {
+        let lo = DVec3::new(c[0] as f64, c[1] as f64, c[2] as f64) * cell;
+        (lo, lo + DVec3::splat(cell))
+    }
+
+    /// Whether cell `c` is one of them: in the box, and (a large tilted triangle's box spans
+    /// many cells its plane never comes near) its box widened by TOUCH meets the plane. Sound
+    /// for `near`: a point within TOUCH of the triangle lies in a cell the plane comes within
+    /// TOUCH of.
+    fn meets(&self, c: [i64; 3]) -> bool {
+        let inside = (0..3).all(|a| self.lo[a] <= c[a] && c[a] <= self.hi[a]);
+        let (lo, hi) = Self::bounds(c, self.cell);
+        inside && (self.n.dot((lo + hi) / 2.0) - self.offset).abs() <= self.margin
     }
 }
 
@@ -517,7 +564,7 @@ mod tests {
             let c = DVec3::new(f(), f(), f()) * 40.0;
             let span = if id % 4 == 0 { 25.0 } else { 3.0 };
             let t = [0, 1, 2].map(|_| c + (DVec3::new(f(), f(), f()) - 0.5) * span);
-            hash.insert(id, &t, |_| None);
+            hash.insert(id, &t, None, |_| None);
             tris.push(t);
         }
         let mut skipped = 0;
@@ -549,5 +596,68 @@ mod tests {
             skipped += boxed as usize - held;
         }
         assert!(skipped > 1000, "only {skipped} cells skipped");
+    }
+
+    /// Triangles moved many times (re-filed from where they were, in cells crowded enough to be
+    /// pruned, some removed) are still found through every point of where they are now.
+    #[test]
+    fn hash_finds_triangles_after_moves_and_prunes() {
+        let mut seed = 11u64;
+        let mut f = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let mut hash = TriangleHash::new(2.0);
+        let mut tris: Vec<Option<[DVec3; 3]>> = Vec::new();
+        for id in 0..300u32 {
+            let c = DVec3::new(f(), f(), f()) * 8.0;
+            let t = [0, 1, 2].map(|_| c + (DVec3::new(f(), f(), f()) - 0.5) * 3.0);
+            hash.insert(id, &t, None, |_| None);
+            tris.push(Some(t));
+        }
+        for step in 0..20_000 {
+            let id = (f() * 300.0) as usize;
+            let Some(was) = tris[id] else { continue };
+            if step % 50 == 0 {
+                tris[id] = None;
+                continue;
+            }
+            // Small moves mostly, now and then a jump across several cells.
+            let reach = if step % 10 == 0 { 6.0 } else { 0.7 };
+            let k = (f() * 3.0) as usize;
+            let mut t = was;
+            t[k] += (DVec3::new(f(), f(), f()) - 0.5) * reach;
+            tris[id] = Some(t);
+            let current = |u: u32| tris[u as usize];
+            hash.insert(id as u32, &t, Some(&was), current);
+        }
+        let mut out = Vec::new();
+        let mut crowded = 0;
+        for ids in hash.cells.values() {
+            crowded += usize::from(ids.len() >= PRUNE_AT);
+        }
+        assert!(
+            crowded > 10,
+            "only {crowded} cells were crowded enough to prune"
+        );
+        for (id, t) in tris.iter().enumerate() {
+            let Some(t) = t else { continue };
+            for _ in 0..20 {
+                let (u, v) = (f(), f());
+                let (u, v) = if u + v > 1.0 {
+                    (1.0 - u, 1.0 - v)
+                } else {
+                    (u, v)
+                };
+                let y = t[0] + u * (t[1] - t[0]) + v * (t[2] - t[0]);
+                hash.near(&[y], &mut out);
+                assert!(
+                    out.contains(&(id as u32)),
+                    "moved triangle {id} not found through {y}"
+                );
+            }
+        }
     }
 }
