@@ -257,6 +257,45 @@ fn partition_by<T>(v: &mut [T], pred: impl Fn(&T) -> bool) -> usize {
     split
 }
 
+/// What a worker thread keeps across checks.
+struct Scratch<'c> {
+    /// Distance memo, sized for the voxels near the surface: about two per start triangle.
+    prox: Proximity<'c>,
+    seen: IdSet,
+}
+
+impl<'c> Scratch<'c> {
+    fn new(cls: &'c Classifier, triangles: usize) -> Self {
+        Scratch {
+            prox: Proximity::with_capacity(cls, 2 * triangles),
+            seen: IdSet::new(triangles),
+        }
+    }
+}
+
+/// A set of triangle ids, one bit each (2 MB for 16 M triangles), empty between uses.
+struct IdSet(Vec<u64>);
+
+impl IdSet {
+    fn new(ids: usize) -> Self {
+        IdSet(vec![0; ids.div_ceil(64)])
+    }
+
+    /// Drops every id from `ids` that an earlier one repeats, keeping the order.
+    fn keep_first(&mut self, ids: &mut Vec<u32>) {
+        let bits = &mut self.0;
+        ids.retain(|&u| {
+            let (word, bit) = (u as usize / 64, 1u64 << (u % 64));
+            let first = bits[word] & bit == 0;
+            bits[word] |= bit;
+            first
+        });
+        for &u in ids.iter() {
+            bits[u as usize / 64] &= !(1u64 << (u % 64));
+        }
+    }
+}
+
 /// A collapse that passed [`State::check`]: b merges into a at v.
 struct Plan {
     a: usize,
@@ -328,10 +367,9 @@ pub fn simplify_until(
         }
     }
     let mut heap = Queue::new(all);
-    // One distance memo per worker thread, kept across batches.
-    // Sized for the voxels near the surface: about two per start triangle.
-    let proxes: Vec<Mutex<Proximity>> = (0..rayon::current_num_threads())
-        .map(|_| Mutex::new(Proximity::with_capacity(cls, 2 * t_count)))
+    // One scratch per worker thread, kept across batches.
+    let scratches: Vec<Mutex<Scratch>> = (0..rayon::current_num_threads())
+        .map(|_| Mutex::new(Scratch::new(cls, t_count)))
         .collect();
     // Batch stamp per vertex: a candidate whose region (a, b and their neighbours) meets an
     // earlier candidate's region in the same batch waits for the next batch.
@@ -373,10 +411,10 @@ pub fn simplify_until(
         let checked: Vec<Result<Plan, Reject>> = batch
             .par_iter()
             .map(|c| {
-                let worker = rayon::current_thread_index().unwrap_or(0) % proxes.len();
-                let mut prox = proxes[worker].lock().expect("one user per worker");
+                let worker = rayon::current_thread_index().unwrap_or(0) % scratches.len();
+                let mut scratch = scratches[worker].lock().expect("one user per worker");
                 let target = s.best_target(c.a, c.b).1;
-                s.check(&mut prox, c.a as usize, c.b as usize, target)
+                s.check(&mut scratch, c.a as usize, c.b as usize, target)
             })
             .collect();
         let mut batch_moved = Vec::new();
@@ -619,8 +657,8 @@ impl State {
 
     /// The checks (topology, flips, band, swept region, self-intersection), reading the mesh as
     /// it was before the batch; run in parallel on independent candidates with a per-thread
-    /// `prox`.
-    fn check(&self, prox: &mut Proximity, a: usize, b: usize, v: DVec3) -> Result<Plan, Reject> {
+    /// `scratch`.
+    fn check(&self, scratch: &mut Scratch, a: usize, b: usize, v: DVec3) -> Result<Plan, Reject> {
         // Topology: a two-face edge between manifold vertices, and the link condition.
         let shared: Vec<u32> = self.star[a]
             .iter()
@@ -706,7 +744,7 @@ impl State {
             changed.iter().map(|(t, q)| (renamed(*t), *q)).collect();
         let in_plane = self.keeps_surface(a, b, v);
         if !in_plane {
-            self.geometry_holds(prox, v, &around, &old, &new, &unchanged)?;
+            self.geometry_holds(scratch, v, &around, &old, &new, &unchanged)?;
         }
         let qv = self.quadric[a].add(&self.quadric[b]);
         let fresh = na
@@ -735,7 +773,7 @@ impl State {
     /// (ids after the collapse, new places), `unchanged` those that stay.
     fn geometry_holds(
         &self,
-        prox: &mut Proximity,
+        scratch: &mut Scratch,
         v: DVec3,
         around: &[u32],
         old: &[[DVec3; 3]],
@@ -744,6 +782,7 @@ impl State {
     ) -> Result<(), Reject> {
         // Tolerance band for the new surface; the new vertex first, the likeliest to be out.
         let (eps, r_min) = (self.opts.eps, self.opts.min_radius);
+        let prox = &mut scratch.prox;
         if prox.distance(v).0 > eps
             || !new
                 .iter()
@@ -770,19 +809,18 @@ impl State {
         let fan_box = bounds(&fan);
         let mut near = Vec::new();
         self.hash.near(&fan, &mut near);
-        let mut others: Vec<(u32, [u32; 3], [DVec3; 3])> = near
+        // Distinct ids first: the hash repeats a triangle once per cell it is filed under,
+        // a large one hundreds of times.
+        scratch.seen.keep_first(&mut near);
+        let others: Vec<([u32; 3], [DVec3; 3])> = near
             .iter()
             .filter(|u| self.tri_alive[**u as usize] && around.binary_search(u).is_err())
             .map(|&u| {
                 let ui = self.tris[u as usize];
-                (u, ui, ui.map(|x| self.pos[x as usize]))
+                (ui, ui.map(|x| self.pos[x as usize]))
             })
-            .filter(|(_, _, up)| bounds_meet(fan_box, bounds(up)))
+            .filter(|(_, up)| bounds_meet(fan_box, bounds(up)))
             .collect();
-        others.sort_unstable_by_key(|o| o.0);
-        others.dedup_by_key(|o| o.0);
-        let others: Vec<([u32; 3], [DVec3; 3])> =
-            others.into_iter().map(|(_, ui, up)| (ui, up)).collect();
         for (k, (ti, q)) in new.iter().enumerate() {
             let mut pairs = others.iter().chain(&new[k + 1..]).chain(unchanged).copied();
             if pairs.any(|(ui, up)| boxes_meet(q, &up) && conflict(*ti, *q, ui, up)) {
@@ -1112,7 +1150,10 @@ mod tests {
         let rough = (0..3).map(|seed| crate::voxel::test_support::random([14, 14, 14], seed));
         for (seed, cls) in std::iter::once(block).chain(rough).enumerate() {
             let mut s = State::new(extract(&cls), defaults());
-            let mut prox = Proximity::with_capacity(&cls, 1 << 12);
+            let mut scratch = Scratch {
+                prox: Proximity::with_capacity(&cls, 1 << 12),
+                seen: IdSet::new(s.tris.len()),
+            };
             for round in 0..4 {
                 for t in 0..s.tris.len() {
                     if !s.tri_alive[t] {
@@ -1121,7 +1162,7 @@ mod tests {
                     let tri = s.tris[t];
                     let (a, b) = (tri[round % 3] as usize, tri[(round + 1) % 3] as usize);
                     let v = if round % 2 == 0 { s.pos[a] } else { s.pos[b] };
-                    let Ok(plan) = s.check(&mut prox, a, b, v) else {
+                    let Ok(plan) = s.check(&mut scratch, a, b, v) else {
                         continue;
                     };
                     if !plan.in_plane {
@@ -1168,6 +1209,17 @@ mod tests {
             }
         }
         assert!(flat > 100 && crease > 100, "flat {flat}, crease {crease}");
+    }
+
+    #[test]
+    fn id_set_keeps_first_occurrences_and_empties_itself() {
+        let mut set = IdSet::new(200);
+        let mut ids = vec![5, 130, 5, 64, 199, 130, 0, 64, 5];
+        set.keep_first(&mut ids);
+        assert_eq!(ids, [5, 130, 64, 199, 0]);
+        let mut again = vec![199, 0, 199];
+        set.keep_first(&mut again);
+        assert_eq!(again, [199, 0], "the set was not emptied");
     }
 
     #[test]
