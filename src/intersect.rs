@@ -611,14 +611,15 @@ mod tests {
         };
         let mut hash = TriangleHash::new(2.0);
         let mut tris: Vec<Option<[DVec3; 3]>> = Vec::new();
-        for id in 0..300u32 {
-            let c = DVec3::new(f(), f(), f()) * 8.0;
-            let t = [0, 1, 2].map(|_| c + (DVec3::new(f(), f(), f()) - 0.5) * 3.0);
-            hash.insert(id, &t, None, |_| None);
+        for id in 0..600u32 {
+            let c = DVec3::new(f(), f(), f()) * 6.0;
+            let t = [0, 1, 2].map(|_| c + (DVec3::new(f(), f(), f()) - 0.5) * 1.5);
             tris.push(Some(t));
+            hash.insert(id, &t, None, |u| tris[u as usize]);
         }
+        assert_filed(&hash, &tris, 0);
         for step in 0..20_000 {
-            let id = (f() * 300.0) as usize;
+            let id = (f() * 600.0) as usize;
             let Some(was) = tris[id] else { continue };
             if step % 50 == 0 {
                 tris[id] = None;
@@ -632,6 +633,9 @@ mod tests {
             tris[id] = Some(t);
             let current = |u: u32| tris[u as usize];
             hash.insert(id as u32, &t, Some(&was), current);
+            if step % 500 == 0 {
+                assert_filed(&hash, &tris, step);
+            }
         }
         let mut out = Vec::new();
         let mut crowded = 0;
@@ -657,6 +661,29 @@ mod tests {
                     out.contains(&(id as u32)),
                     "moved triangle {id} not found through {y}"
                 );
+            }
+        }
+    }
+
+    /// The invariant: every live triangle is held by every cell of its reach.
+    fn assert_filed(hash: &TriangleHash, tris: &[Option<[DVec3; 3]>], step: usize) {
+        for (u, t) in tris.iter().enumerate() {
+            let Some(t) = t else { continue };
+            let r = hash.reach(t);
+            for k in r.lo[2]..=r.hi[2] {
+                for j in r.lo[1]..=r.hi[1] {
+                    for i in r.lo[0]..=r.hi[0] {
+                        let c = [i, j, k];
+                        let held = hash
+                            .cells
+                            .get(&TriangleHash::key(c))
+                            .is_some_and(|ids| ids.contains(&(u as u32)));
+                        assert!(
+                            held || !r.meets(c),
+                            "after {step} moves, triangle {u} is missing from cell {c:?}"
+                        );
+                    }
+                }
             }
         }
     }
