@@ -191,6 +191,11 @@ struct Queue {
     buckets: Vec<BinaryHeap<Candidate>>,
     /// No greater than the first non-empty bucket.
     low: usize,
+    /// The buckets' capacity in entries, and the capacity at which they all drop their stale
+    /// entries, as if they were one full heap (a bucket is emptied by pops only when it is the
+    /// cheapest: the costly ones would otherwise keep every stale entry pushed into them).
+    capacity: usize,
+    budget: usize,
 }
 
 /// Buckets of [`Queue`]: one per value of a non-negative f32's top 16 bits.
@@ -211,23 +216,25 @@ impl Queue {
         let split = partition_by(&mut all, |c| c.cost != 0.0);
         let mut zero = all.split_off(split);
         zero.sort_unstable_by_key(Candidate::scatter);
-        let mut counts = vec![0usize; BUCKETS];
-        for c in &all {
-            counts[bucket(c.cost)] += 1;
+        // Split off bucket by bucket from the back of `all` sorted by bucket, shrinking it as it
+        // goes, so that its freed memory serves the next buckets: the candidates are held once,
+        // not twice (memory freed to the allocator mid-heap stays resident).
+        all.sort_unstable_by_key(|c| bucket(c.cost));
+        let mut buckets: Vec<BinaryHeap<Candidate>> =
+            (0..BUCKETS).map(|_| BinaryHeap::new()).collect();
+        while let Some(last) = all.last() {
+            let k = bucket(last.cost);
+            let start = all.partition_point(|c| bucket(c.cost) < k);
+            buckets[k] = BinaryHeap::from(all.split_off(start));
+            all.shrink_to_fit();
         }
-        let mut buckets: Vec<Vec<Candidate>> = counts.into_iter().map(Vec::with_capacity).collect();
-        // Drained from the back, `all` gives its memory back as it empties: the candidates are
-        // held once, not twice (the buckets' pages are touched only as they fill).
-        while let Some(c) = all.pop() {
-            buckets[bucket(c.cost)].push(c);
-            if all.len() < all.capacity() / 2 {
-                all.shrink_to_fit();
-            }
-        }
+        let capacity = buckets.iter().map(BinaryHeap::capacity).sum::<usize>();
         Queue {
             zero: VecDeque::from(zero),
-            buckets: buckets.into_iter().map(BinaryHeap::from).collect(),
+            buckets,
             low: 0,
+            capacity,
+            budget: capacity.max(1 << 16),
         }
     }
 
@@ -556,9 +563,10 @@ impl State {
         self.vert_alive[a] && self.vert_alive[b] && self.version[a] + self.version[b] == c.ver
     }
 
-    /// Pushes `c`; a full queue first drops its stale entries rather than growing (they are
-    /// most of it: every collapse makes the entries at its kept vertex stale), and grows only
-    /// when that frees less than a quarter.
+    /// Pushes `c`. A full FIFO first drops its stale entries rather than growing (they are most
+    /// of it: every collapse makes the entries at its kept vertex stale), and grows only when
+    /// that frees less than a quarter; the buckets likewise, all together, when one of them is
+    /// full and their capacity has reached the budget.
     fn push(&self, queue: &mut Queue, c: Candidate) {
         if c.cost == 0.0 {
             let zero = &mut queue.zero;
@@ -569,18 +577,27 @@ impl State {
                 }
             }
             zero.push_back(c);
-        } else {
-            let k = bucket(c.cost);
-            queue.low = queue.low.min(k);
-            let heap = &mut queue.buckets[k];
-            if heap.len() == heap.capacity() && heap.len() >= 64 {
-                heap.retain(|c| self.is_current(c));
-                if heap.len() * 4 > heap.capacity() * 3 {
-                    heap.reserve(heap.capacity());
-                }
-            }
-            heap.push(c);
+            return;
         }
+        let k = bucket(c.cost);
+        let full = |h: &BinaryHeap<Candidate>| h.len() == h.capacity();
+        if full(&queue.buckets[k]) && queue.capacity >= queue.budget {
+            let (mut live, mut capacity) = (0, 0);
+            for heap in &mut queue.buckets {
+                heap.retain(|c| self.is_current(c));
+                heap.shrink_to_fit();
+                (live, capacity) = (live + heap.len(), capacity + heap.capacity());
+            }
+            queue.capacity = capacity;
+            if live * 4 > queue.budget * 3 {
+                queue.budget *= 2;
+            }
+        }
+        queue.low = queue.low.min(k);
+        let heap = &mut queue.buckets[k];
+        let before = heap.capacity();
+        heap.push(c);
+        queue.capacity += heap.capacity() - before;
     }
 
     fn candidate(&self, a: u32, b: u32) -> Candidate {
