@@ -191,10 +191,10 @@ struct Queue {
     buckets: Vec<BinaryHeap<Candidate>>,
     /// No greater than the first non-empty bucket.
     low: usize,
-    /// The buckets' capacity in entries, and the capacity at which they all drop their stale
-    /// entries, as if they were one full heap (a bucket is emptied by pops only when it is the
-    /// cheapest: the costly ones would otherwise keep every stale entry pushed into them).
-    capacity: usize,
+    /// Entries in the buckets, and the count at which they all drop their stale entries, as if
+    /// they were one full heap (a bucket is emptied by pops only when it is the cheapest: the
+    /// costly ones would otherwise keep every stale entry pushed into them).
+    held: usize,
     budget: usize,
 }
 
@@ -228,13 +228,13 @@ impl Queue {
             buckets[k] = BinaryHeap::from(all.split_off(start));
             all.shrink_to_fit();
         }
-        let capacity = buckets.iter().map(BinaryHeap::capacity).sum::<usize>();
+        let held = buckets.iter().map(BinaryHeap::len).sum::<usize>();
         Queue {
             zero: VecDeque::from(zero),
             buckets,
             low: 0,
-            capacity,
-            budget: capacity.max(1 << 16),
+            held,
+            budget: held.max(1 << 16),
         }
     }
 
@@ -244,6 +244,7 @@ impl Queue {
         }
         while self.low < BUCKETS {
             if let Some(c) = self.buckets[self.low].pop() {
+                self.held -= 1;
                 return Some(c);
             }
             self.low += 1;
@@ -565,8 +566,8 @@ impl State {
 
     /// Pushes `c`. A full FIFO first drops its stale entries rather than growing (they are most
     /// of it: every collapse makes the entries at its kept vertex stale), and grows only when
-    /// that frees less than a quarter; the buckets likewise, all together, when one of them is
-    /// full and their capacity has reached the budget.
+    /// that frees less than a quarter; the buckets likewise, all together, when they hold as
+    /// many entries as their budget.
     fn push(&self, queue: &mut Queue, c: Candidate) {
         if c.cost == 0.0 {
             let zero = &mut queue.zero;
@@ -579,25 +580,26 @@ impl State {
             zero.push_back(c);
             return;
         }
-        let k = bucket(c.cost);
-        let full = |h: &BinaryHeap<Candidate>| h.len() == h.capacity();
-        if full(&queue.buckets[k]) && queue.capacity >= queue.budget {
-            let (mut live, mut capacity) = (0, 0);
+        if queue.held >= queue.budget {
+            queue.held = 0;
             for heap in &mut queue.buckets {
                 heap.retain(|c| self.is_current(c));
                 heap.shrink_to_fit();
-                (live, capacity) = (live + heap.len(), capacity + heap.capacity());
+                queue.held += heap.len();
             }
-            queue.capacity = capacity;
-            if live * 4 > queue.budget * 3 {
+            if queue.held * 4 > queue.budget * 3 {
                 queue.budget *= 2;
             }
         }
+        let k = bucket(c.cost);
         queue.low = queue.low.min(k);
         let heap = &mut queue.buckets[k];
-        let before = heap.capacity();
+        if heap.len() == heap.capacity() {
+            // Grow by an eighth, not double: there are many buckets, and their slack adds up.
+            heap.reserve_exact(heap.len() / 8 + 4);
+        }
         heap.push(c);
-        queue.capacity += heap.capacity() - before;
+        queue.held += 1;
     }
 
     fn candidate(&self, a: u32, b: u32) -> Candidate {
