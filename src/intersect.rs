@@ -435,6 +435,27 @@ pub fn boxes_meet(s: &[DVec3], t: &[DVec3]) -> bool {
 mod tests {
     use super::*;
 
+    /// Uniform numbers in [0, 1) from a xorshift generator.
+    fn xorshift(mut seed: u64) -> impl FnMut() -> f64 {
+        move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        }
+    }
+
+    /// A uniform random point of triangle `t`.
+    fn point_on(t: &[DVec3; 3], f: &mut impl FnMut() -> f64) -> DVec3 {
+        let (u, v) = (f(), f());
+        let (u, v) = if u + v > 1.0 {
+            (1.0 - u, 1.0 - v)
+        } else {
+            (u, v)
+        };
+        t[0] + u * (t[1] - t[0]) + v * (t[2] - t[0])
+    }
+
     fn v(x: f64, y: f64, z: f64) -> DVec3 {
         DVec3::new(x, y, z)
     }
@@ -551,13 +572,7 @@ mod tests {
     /// inserted one is (most of its box's cells are skipped).
     #[test]
     fn hash_finds_every_triangle_through_a_point_of_an_inserted_one() {
-        let mut seed = 3u64;
-        let mut f = move || {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            (seed >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut f = xorshift(3);
         let mut hash = TriangleHash::new(2.0);
         let mut tris = Vec::new();
         for id in 0..200u32 {
@@ -571,13 +586,7 @@ mod tests {
         let mut out = Vec::new();
         for (id, t) in tris.iter().enumerate() {
             for _ in 0..20 {
-                let (u, v) = (f(), f());
-                let (u, v) = if u + v > 1.0 {
-                    (1.0 - u, 1.0 - v)
-                } else {
-                    (u, v)
-                };
-                let y = t[0] + u * (t[1] - t[0]) + v * (t[2] - t[0]);
+                let y = point_on(t, &mut f);
                 let q = [0, 1, 2].map(|_| y + (DVec3::new(f(), f(), f()) - 0.5) * 0.1);
                 let q = [y, q[1], q[2]];
                 hash.near(&q, &mut out);
@@ -602,13 +611,7 @@ mod tests {
     /// pruned, some removed) are still found through every point of where they are now.
     #[test]
     fn hash_finds_triangles_after_moves_and_prunes() {
-        let mut seed = 11u64;
-        let mut f = move || {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            (seed >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut f = xorshift(11);
         let mut hash = TriangleHash::new(2.0);
         let mut tris: Vec<Option<[DVec3; 3]>> = Vec::new();
         for id in 0..600u32 {
@@ -649,13 +652,7 @@ mod tests {
         for (id, t) in tris.iter().enumerate() {
             let Some(t) = t else { continue };
             for _ in 0..20 {
-                let (u, v) = (f(), f());
-                let (u, v) = if u + v > 1.0 {
-                    (1.0 - u, 1.0 - v)
-                } else {
-                    (u, v)
-                };
-                let y = t[0] + u * (t[1] - t[0]) + v * (t[2] - t[0]);
+                let y = point_on(t, &mut f);
                 hash.near(&[y], &mut out);
                 assert!(
                     out.contains(&(id as u32)),
