@@ -270,9 +270,9 @@ fn corners_overlap(p: DVec3, ab: [DVec3; 2], cd: [DVec3; 2], n: DVec3) -> bool {
 const PRUNE_AT: usize = 32;
 
 /// Triangle ids by the cells their bounding boxes meet (cells their plane misses by more than
-/// TOUCH left out), an id possibly more than once per cell until the cell is pruned. A triangle that moves is inserted again under
-/// its new cells, so every live triangle is found in each cell that holds a point within TOUCH
-/// of it; inserts prune the cells they touch.
+/// TOUCH left out), an id possibly more than once per cell until the cell is pruned. A triangle
+/// that moves is filed again under the cells it newly reaches, so every live triangle is found
+/// in each cell that holds a point within TOUCH of it; inserts prune the cells they touch.
 pub struct TriangleHash {
     cell: f64,
     cells: HashMap<u64, Vec<u32>, BuildHasherDefault<KeyHasher>>,
@@ -579,8 +579,8 @@ mod tests {
             let c = DVec3::new(f(), f(), f()) * 40.0;
             let span = if id % 4 == 0 { 25.0 } else { 3.0 };
             let t = [0, 1, 2].map(|_| c + (DVec3::new(f(), f(), f()) - 0.5) * span);
-            hash.insert(id, &t, None, |_| None);
             tris.push(t);
+            hash.insert(id, &t, None, |u| Some(tris[u as usize]));
         }
         let mut skipped = 0;
         let mut out = Vec::new();

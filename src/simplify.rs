@@ -1153,10 +1153,7 @@ mod tests {
         let rough = (0..3).map(|seed| crate::voxel::test_support::random([14, 14, 14], seed));
         for (seed, cls) in std::iter::once(block).chain(rough).enumerate() {
             let mut s = State::new(extract(&cls), defaults());
-            let mut scratch = Scratch {
-                prox: Proximity::with_capacity(&cls, 1 << 12),
-                seen: IdSet::new(s.tris.len()),
-            };
+            let mut scratch = Scratch::new(&cls, s.tris.len());
             for round in 0..4 {
                 for t in 0..s.tris.len() {
                     if !s.tri_alive[t] {
