@@ -14,15 +14,11 @@ use crate::voxel::Classifier;
 /// voxel three steps away is at least 2 from any point of the middle one).
 pub const REACH: f64 = 2.0;
 
-/// Distance from `p` to the voxel cube `v` (closed unit cube at integer corner `v`).
-fn dist_to_cube(p: DVec3, v: [isize; 3]) -> f64 {
-    let mut d2 = 0.0;
-    for a in 0..3 {
-        let lo = v[a] as f64;
-        let g = (lo - p[a]).max(p[a] - (lo + 1.0)).max(0.0);
-        d2 += g * g;
-    }
-    d2.sqrt()
+/// Squared distance from `p` to the voxel cube `v` (closed unit cube at integer corner `v`).
+fn dist2_to_cube(p: DVec3, v: [isize; 3]) -> f64 {
+    let lo = DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64);
+    let g = (lo - p).max(p - (lo + 1.0)).max(DVec3::ZERO);
+    g.length_squared()
 }
 
 /// The exact distance from `p` to ∂W when it is at most `limit`, else None (farther). Brute
@@ -38,7 +34,7 @@ pub fn dist_to_boundary(cls: &Classifier, p: DVec3, limit: f64) -> Option<f64> {
         for j in lo.y as isize..=hi.y as isize {
             for i in lo.x as isize..=hi.x as isize {
                 if cls.inside(i, j, k) != here {
-                    best = best.min(dist_to_cube(p, [i, j, k]));
+                    best = best.min(dist2_to_cube(p, [i, j, k]).sqrt());
                 }
             }
         }
@@ -288,7 +284,11 @@ impl<'c> Proximity<'c> {
                 return false;
             }
             let c = piece.iter().sum::<DVec3>() / N as f64;
-            let r = piece.iter().map(|x| (*x - c).length()).fold(0.0, f64::max);
+            let r = piece
+                .iter()
+                .map(|x| (*x - c).length_squared())
+                .fold(0.0, f64::max)
+                .sqrt();
             let near = self.nearest(c);
             match judge(self, &piece, r, &near) {
                 Verdict::Pass => {}
@@ -409,7 +409,8 @@ struct Near {
 /// Whether every corner of a piece is within `limit` of voxel cube `v` (then every point of the
 /// piece is: the distance to a convex set is convex).
 fn corners_within<const N: usize>(piece: &[DVec3; N], v: [isize; 3], limit: f64) -> bool {
-    piece.iter().all(|p| dist_to_cube(*p, v) <= limit)
+    let limit2 = limit * limit;
+    piece.iter().all(|p| dist2_to_cube(*p, v) <= limit2)
 }
 
 /// What [`Proximity::refine`] does with a piece.
