@@ -28,6 +28,10 @@ use crate::intersect::{bounds, bounds_meet, boxes_meet, conflict, TriangleHash};
 use crate::mesh::Mesh;
 use crate::voxel::Classifier;
 
+mod region;
+
+use region::Region;
+
 /// Candidates checked together (in parallel); results do not depend on the thread count.
 const BATCH: usize = 64;
 
@@ -52,7 +56,7 @@ pub struct SimplifyOptions {
 pub struct SimplifyStats {
     pub collapses: u64,
     /// Collapses that kept the surface's point set (flat or straight-crease vertices merged
-    /// along it: [`State::keeps_surface`]).
+    /// along it: [`Region::keeps_surface`]).
     pub collapses_in_plane: u64,
     pub rejected_topology: u64,
     pub rejected_flip: u64,
@@ -295,7 +299,7 @@ impl IdSet {
     }
 }
 
-/// A collapse that passed [`State::check`]: b merges into a at v.
+/// A collapse that passed [`Region::check`]: b merges into a at v.
 struct Plan {
     a: usize,
     b: usize,
@@ -310,7 +314,12 @@ struct Plan {
     /// a's neighbours after the collapse, with the cost of collapsing the edge to each (read
     /// before the batch: no other collapse of the batch moves them or a).
     fresh: Vec<(u32, f64)>,
-    /// The collapse keeps the surface's point set ([`State::keeps_surface`]).
+    /// The triangles around the edge before the collapse, sorted.
+    around: Vec<u32>,
+    /// The surviving triangles around the edge that stay where they are (ids after the
+    /// collapse, places).
+    unchanged: Vec<([u32; 3], [DVec3; 3])>,
+    /// The collapse keeps the surface's point set ([`Region::keeps_surface`]).
     in_plane: bool,
 }
 
@@ -326,7 +335,6 @@ enum Reject {
 struct State {
     /// Every live triangle under the cells its current box meets (plus stale entries).
     hash: TriangleHash,
-    opts: SimplifyOptions,
     pos: Vec<DVec3>,
     tris: Vec<[u32; 3]>,
     tri_alive: Vec<bool>,
@@ -352,10 +360,21 @@ pub fn simplify_until(
     opts: SimplifyOptions,
     stop: &(dyn Fn() -> bool + Sync),
 ) -> Option<(Mesh, SimplifyStats)> {
+    // On a worker of the pool, the loop's own thread takes part in the parallel checks (a
+    // caller outside the pool would sleep through each and wait to be woken).
+    rayon::scope(|_| simplify_in_pool(mesh, cls, opts, stop))
+}
+
+fn simplify_in_pool(
+    mesh: Mesh,
+    cls: &Classifier,
+    opts: SimplifyOptions,
+    stop: &(dyn Fn() -> bool + Sync),
+) -> Option<(Mesh, SimplifyStats)> {
     assert!(opts.min_radius > 0.0 && opts.eps < band::REACH && opts.eps_sweep < band::REACH);
     let t_count = mesh.triangles.len();
     let n = mesh.positions.len();
-    let mut s = State::new(mesh, opts);
+    let mut s = State::new(mesh);
     let mut all = Vec::with_capacity(3 * t_count / 2);
     for tri in &s.tris {
         for k in 0..3 {
@@ -370,92 +389,102 @@ pub fn simplify_until(
     let scratches: Vec<Mutex<Scratch>> = (0..rayon::current_num_threads())
         .map(|_| Mutex::new(Scratch::new(cls, t_count)))
         .collect();
-    // Batch stamp per vertex: a candidate whose region (a, b and their neighbours) meets an
-    // earlier candidate's region in the same batch waits for the next batch.
-    let mut stamp = vec![0u32; n];
-    let mut batch_no = 0u32;
-    let mut batch: Vec<Candidate> = Vec::with_capacity(BATCH);
-    let mut deferred: Vec<Candidate> = Vec::new();
-    let mut region: Vec<usize> = Vec::new();
+    let scratch = || {
+        let worker = rayon::current_thread_index().unwrap_or(0) % scratches.len();
+        scratches[worker].lock().expect("one user per worker")
+    };
+    let mut gatherer = Gatherer {
+        stamp: vec![0; n],
+        batch_no: 0,
+        region: Vec::new(),
+    };
     // Rejected edges by endpoint (each under both), retried once a collapse changes the
     // triangles around them.
     let mut parked: HashMap<u32, Vec<u32>> = HashMap::new();
-    'batches: while s.live_tris > opts.target_triangles {
+    // A pipeline of batches: while one commits, the next gets its local checks (on copies of
+    // its regions, disjoint from those in flight); its self-intersection checks, which read the
+    // committed mesh, run while the one after it is gathered. Batches, and so the result, do
+    // not depend on the thread count.
+    let mut ready: Vec<((u32, u32), Result<Plan, Reject>)> = Vec::new();
+    let (mut next, mut deferred) = gatherer.gather(&s, &mut heap);
+    loop {
         if stop() {
             return None;
         }
-        batch_no += 1;
-        batch.clear();
-        while batch.len() < BATCH {
-            let Some(c) = heap.pop() else { break };
-            let (a, b) = (c.a as usize, c.b as usize);
-            if !s.is_current(&c) {
-                continue;
-            }
-            region.clear();
-            s.star_vertices(a, &mut region);
-            s.star_vertices(b, &mut region);
-            if region.iter().any(|&x| stamp[x] == batch_no) {
-                deferred.push(c);
-                continue;
-            }
-            for &x in &region {
-                stamp[x] = batch_no;
-            }
-            batch.push(c);
-        }
-        if batch.is_empty() {
+        let target = opts.target_triangles;
+        let (reached, local) = rayon::join(
+            || s.commit_batch(&mut heap, &mut parked, ready, deferred, target),
+            || {
+                next.par_iter()
+                    .map(|r| r.check(&mut scratch().prox, &opts, r.target()))
+                    .collect::<Vec<_>>()
+            },
+        );
+        if reached {
             break;
         }
-        let checked: Vec<Result<Plan, Reject>> = batch
-            .par_iter()
-            .map(|c| {
-                let worker = rayon::current_thread_index().unwrap_or(0) % scratches.len();
-                let mut scratch = scratches[worker].lock().expect("one user per worker");
-                let target = s.best_target(c.a, c.b).1;
-                s.check(&mut scratch, c.a as usize, c.b as usize, target)
-            })
-            .collect();
-        let mut batch_moved = Vec::new();
-        for (c, outcome) in batch.iter().zip(checked) {
-            if s.live_tris <= opts.target_triangles {
-                break 'batches;
-            }
-            let mut plan = match outcome {
-                Ok(plan) => plan,
-                Err(why) => {
-                    s.stats.count(why);
-                    park(&mut parked, c.a, c.b);
-                    continue;
-                }
-            };
-            let a = plan.a;
-            let fresh = std::mem::take(&mut plan.fresh);
-            if s.commit(plan, &mut batch_moved) {
-                // Edges at a have a new cost: fresh candidates (their old entries are stale by
-                // a's version). Edges at a's neighbours keep their cost and their heap entries,
-                // but their stars now hold moved triangles, so those rejected earlier may pass
-                // now: they come back.
-                parked.remove(&(a as u32));
-                for (nb, cost) in fresh {
-                    let c = Candidate {
-                        cost: cost as f32,
-                        a: a as u32,
-                        b: nb,
-                        ver: s.version[a] + s.version[nb as usize],
-                    };
-                    s.push(&mut heap, c);
-                    s.retry_parked(&mut parked, &mut heap, nb, a as u32);
-                }
-            } else {
-                park(&mut parked, c.a, c.b);
-            }
-        }
-        for c in deferred.drain(..) {
-            s.push(&mut heap, c);
+        let ((gathered, later), checked) = rayon::join(
+            || gatherer.gather(&s, &mut heap),
+            || {
+                local
+                    .into_par_iter()
+                    .map(|outcome| {
+                        let plan = outcome?;
+                        if !plan.in_plane {
+                            s.crosses_nothing(&mut scratch().seen, &plan)?;
+                        }
+                        Ok(plan)
+                    })
+                    .collect::<Vec<_>>()
+            },
+        );
+        ready = next.iter().map(|r| (r.a, r.b)).zip(checked).collect();
+        (next, deferred) = (gathered, later);
+        // An empty batch means an empty queue: a candidate is deferred only for meeting the
+        // regions of this batch or of the one before.
+        if ready.is_empty() && next.is_empty() {
+            break;
         }
     }
     Some((s.compact(), s.stats))
+}
+
+/// Draws batches from the queue: candidates still current whose regions (a, b and their
+/// neighbours) meet no region in flight.
+struct Gatherer {
+    /// Per vertex, the last batch whose region held it.
+    stamp: Vec<u32>,
+    batch_no: u32,
+    region: Vec<usize>,
+}
+
+impl Gatherer {
+    /// The next batch (up to [`BATCH`] regions, cheapest first) and the candidates deferred
+    /// because their regions meet this batch's or the previous one's (not yet committed):
+    /// they go back to the queue once that one commits.
+    fn gather(&mut self, s: &State, heap: &mut Queue) -> (Vec<Region>, Vec<Candidate>) {
+        self.batch_no += 1;
+        let (mut batch, mut deferred) = (Vec::with_capacity(BATCH), Vec::new());
+        while batch.len() < BATCH {
+            let Some(c) = heap.pop() else { break };
+            if !s.is_current(&c) {
+                continue;
+            }
+            let region = &mut self.region;
+            region.clear();
+            s.star_vertices(c.a as usize, region);
+            s.star_vertices(c.b as usize, region);
+            if region.iter().any(|&x| self.stamp[x] + 1 >= self.batch_no) {
+                deferred.push(c);
+                continue;
+            }
+            for &x in region.iter() {
+                self.stamp[x] = self.batch_no;
+            }
+            batch.push(s.region(c.a, c.b));
+        }
+        (batch, deferred)
+    }
 }
 
 /// The quadric error and position of the cheapest target for merging a vertex with quadric
@@ -495,12 +524,11 @@ fn park(parked: &mut HashMap<u32, Vec<u32>>, a: u32, b: u32) {
 
 impl State {
     /// Stars, quadrics and the triangle hash of `mesh`.
-    fn new(mesh: Mesh, opts: SimplifyOptions) -> State {
+    fn new(mesh: Mesh) -> State {
         let n = mesh.positions.len();
         let t_count = mesh.triangles.len();
         let mut s = State {
             hash: TriangleHash::new(HASH_CELL),
-            opts,
             pos: mesh.positions,
             tris: mesh.triangles,
             tri_alive: vec![true; t_count],
@@ -623,198 +651,38 @@ impl State {
         out
     }
 
-    /// Whether v's triangles form one closed fan (a disc around v).
-    fn is_manifold(&self, v: usize) -> bool {
-        // Each triangle contributes its edge opposite v, oriented; one fan means these edges
-        // chain into a single cycle through every link vertex once.
-        let mut next = std::collections::HashMap::new();
-        for &t in &self.star[v] {
-            let tri = self.tris[t as usize];
-            let k = tri
-                .iter()
-                .position(|&x| x as usize == v)
-                .expect("v in its star");
-            let (p, q) = (tri[(k + 1) % 3], tri[(k + 2) % 3]);
-            if next.insert(p, q).is_some() {
-                return false;
-            }
-        }
-        let Some(&start) = next.keys().next() else {
-            return false;
-        };
-        let (mut at, mut steps) = (start, 0);
-        loop {
-            let Some(&n) = next.get(&at) else {
-                return false;
-            };
-            at = n;
-            steps += 1;
-            if at == start {
-                return steps == next.len();
-            }
-            if steps > next.len() {
-                return false;
-            }
-        }
-    }
-
-    /// The checks (topology, flips, band, swept region, self-intersection), reading the mesh as
-    /// it was before the batch; run in parallel on independent candidates with a per-thread
-    /// `scratch`.
-    fn check(&self, scratch: &mut Scratch, a: usize, b: usize, v: DVec3) -> Result<Plan, Reject> {
-        // Topology: a two-face edge between manifold vertices, and the link condition.
-        let shared: Vec<u32> = self.star[a]
+    /// The triangles around edge (a, b) and their vertices, copied.
+    fn region(&self, a: u32, b: u32) -> Region {
+        let mut tris: Vec<(u32, [u32; 3])> = self.star[a as usize]
             .iter()
-            .copied()
-            .filter(|t| self.tris[*t as usize].contains(&(b as u32)))
+            .chain(&self.star[b as usize])
+            .map(|&t| (t, self.tris[t as usize]))
             .collect();
-        if shared.len() != 2 || !self.is_manifold(a) || !self.is_manifold(b) {
-            return Err(Reject::Topology);
-        }
-        let opposite: Vec<usize> = shared
-            .iter()
-            .map(|&t| {
-                let tri = self.tris[t as usize];
-                *tri.iter()
-                    .find(|&&x| x as usize != a && x as usize != b)
-                    .expect("third vertex") as usize
-            })
-            .collect();
-        let (na, nb) = (self.neighbours(a), self.neighbours(b));
-        let common = na.iter().filter(|x| nb.binary_search(x).is_ok()).count();
-        // The edge part of the link condition: if triangles (a, c, d) and (b, c, d) both exist
-        // for the opposite vertices c, d (a tetrahedron-like component), the collapse would
-        // leave two coincident triangles enclosing nothing.
-        let (c, d) = (opposite[0] as u32, opposite[1] as u32);
-        let spans_cd = |v: usize| {
-            self.star[v].iter().any(|&t| {
-                let tri = self.tris[t as usize];
-                tri.contains(&c) && tri.contains(&d)
-            })
-        };
-        if common != 2 || c == d || (spans_cd(a) && spans_cd(b)) {
-            return Err(Reject::Topology);
-        }
-
-        // The triangles around the edge before, and those that survive with a, b moved to v.
-        let mut around: Vec<u32> = self.star[a].iter().chain(&self.star[b]).copied().collect();
-        around.sort_unstable();
-        around.dedup();
-        let old: Vec<[DVec3; 3]> = around
-            .iter()
-            .map(|&t| self.tris[t as usize].map(|x| self.pos[x as usize]))
-            .collect();
-        let mut changed: Vec<(u32, [DVec3; 3])> = Vec::new();
-        for &t in &around {
-            let tri = self.tris[t as usize];
-            if shared.contains(&t) {
-                continue;
-            }
-            let q = tri.map(|x| {
-                if x as usize == a || x as usize == b {
-                    v
-                } else {
-                    self.pos[x as usize]
-                }
-            });
-            changed.push((t, q));
-        }
-        for (_, q) in &changed {
-            let n_new = (q[1] - q[0]).cross(q[2] - q[0]);
-            if n_new.length_squared() <= 1e-18 {
-                return Err(Reject::Flip);
-            }
-        }
-        for (t, q) in &changed {
-            let p = self.tris[*t as usize].map(|x| self.pos[x as usize]);
-            let n_old = (p[1] - p[0]).cross(p[2] - p[0]);
-            let n_new = (q[1] - q[0]).cross(q[2] - q[0]);
-            if n_old.dot(n_new) <= 0.0 {
-                return Err(Reject::Flip);
-            }
-        }
-        // Triangles of the kept endpoint's star that do not hold the other one stay where they
-        // are when v is that endpoint: they are already within the band and cross nothing, so
-        // only the moved ones are checked (against the unchanged ones too) and re-filed.
-        let renamed =
-            |t: u32| self.tris[t as usize].map(|x| if x as usize == b { a as u32 } else { x });
-        let stays =
-            |(t, q): &(u32, [DVec3; 3])| *q == self.tris[*t as usize].map(|x| self.pos[x as usize]);
-        let (unchanged, changed): (Vec<_>, Vec<_>) = changed.into_iter().partition(stays);
-        let unchanged: Vec<([u32; 3], [DVec3; 3])> =
-            unchanged.iter().map(|(t, q)| (renamed(*t), *q)).collect();
-        let new: Vec<([u32; 3], [DVec3; 3])> =
-            changed.iter().map(|(t, q)| (renamed(*t), *q)).collect();
-        let in_plane = self.keeps_surface(a, b, v);
-        if !in_plane {
-            self.geometry_holds(scratch, v, &around, &old, &new, &unchanged)?;
-        }
-        let qv = self.quadric[a].add(&self.quadric[b]);
-        let fresh = na
-            .iter()
-            .chain(&nb)
-            .copied()
-            .filter(|&x| x != a && x != b)
-            .collect::<std::collections::BTreeSet<usize>>()
+        tris.sort_unstable_by_key(|x| x.0);
+        tris.dedup_by_key(|x| x.0);
+        let mut ids: Vec<u32> = tris.iter().flat_map(|x| x.1).collect();
+        ids.sort_unstable();
+        ids.dedup();
+        let verts = ids
             .into_iter()
-            .map(|x| (x as u32, cheapest(&qv, v, &self.quadric[x], self.pos[x]).0))
+            .map(|x| (x, self.pos[x as usize], self.quadric[x as usize]))
             .collect();
-        Ok(Plan {
-            a,
-            b,
-            v,
-            shared,
-            changed,
-            new,
-            fresh,
-            in_plane,
-        })
+        Region { a, b, tris, verts }
     }
 
-    /// The band, sweep and self-intersection checks of a collapse to `v`: `around` the
-    /// triangles around the edge (sorted) at their `old` places, `new` the survivors that move
-    /// (ids after the collapse, new places), `unchanged` those that stay.
-    fn geometry_holds(
-        &self,
-        scratch: &mut Scratch,
-        v: DVec3,
-        around: &[u32],
-        old: &[[DVec3; 3]],
-        new: &[([u32; 3], [DVec3; 3])],
-        unchanged: &[([u32; 3], [DVec3; 3])],
-    ) -> Result<(), Reject> {
-        // Tolerance band for the new surface; the new vertex first, the likeliest to be out.
-        let (eps, r_min) = (self.opts.eps, self.opts.min_radius);
-        let prox = &mut scratch.prox;
-        if prox.distance(v).0 > eps
-            || !new
-                .iter()
-                .all(|(_, q)| prox.triangle_within(*q, eps, r_min))
-        {
-            return Err(Reject::Band);
-        }
-        // The region swept by the collapse: the tetrahedra (old triangle, v) must hold no point
-        // of W deeper than eps_sweep, hence no point of the swept volume. A tetrahedron with v
-        // at a corner of its triangle is that triangle, which lies within eps of ∂W (every live
-        // triangle does): no point of W deeper than eps <= eps_sweep.
-        let es = self.opts.eps_sweep;
-        for p in old {
-            if eps <= es && p.contains(&v) {
-                continue;
-            }
-            if !prox.tetrahedron_shallow([p[0], p[1], p[2], v], es, r_min) {
-                return Err(Reject::Sweep);
-            }
-        }
-        // No self-intersection: each new triangle against the other live triangles near it and
-        // against the other new ones (ids as after the collapse: b becomes a).
+    /// The self-intersection check of a plan that moves the surface ([`Plan::in_plane`] false):
+    /// each new triangle against the other live triangles near it, the other new ones (ids as
+    /// after the collapse: b becomes a) and the unchanged ones. Reads the mesh as committed:
+    /// the plans committed before this one in its batch are checked at its commit.
+    fn crosses_nothing(&self, seen: &mut IdSet, plan: &Plan) -> Result<(), Reject> {
+        let (new, unchanged, around) = (&plan.new, &plan.unchanged, &plan.around);
         let fan: Vec<DVec3> = new.iter().flat_map(|(_, q)| *q).collect();
         let fan_box = bounds(&fan);
         let mut near = Vec::new();
         self.hash.near(&fan, &mut near);
         // Distinct ids first: the hash repeats a triangle once per cell it is filed under,
         // a large one hundreds of times.
-        scratch.seen.keep_first(&mut near);
+        seen.keep_first(&mut near);
         let others: Vec<([u32; 3], [DVec3; 3])> = near
             .iter()
             .filter(|u| self.tri_alive[**u as usize] && around.binary_search(u).is_err())
@@ -833,110 +701,54 @@ impl State {
         Ok(())
     }
 
-    /// Whether collapsing (a, b) to `v` leaves the surface the same point set, so that the
-    /// band, sweep and intersection checks hold without being run (the flip check has passed:
-    /// no new triangle is degenerate or turned against its old normal).
-    ///
-    /// So it is when v is one endpoint, k, and the other, m, is flat or on a straight crease
-    /// through k:
-    /// - flat: m's triangles lie in one plane, facing the same way, winding once around m
-    ///   (angles summing to 2π). They tile the polygon L of their outer edges, star-shaped from
-    ///   m; after the collapse the fan from k over the same outer edges has boundary L as well,
-    ///   and with every new triangle facing the plane's way, the number of new triangles over a
-    ///   point is L's winding number there: they tile L exactly;
-    /// - crease: m's triangles lie in two planes, both through k, each plane's triangles
-    ///   contiguous around m with angles summing to π, and the two crease edges are (m, k) and
-    ///   (m, k') with m strictly between k and k'. Each plane's half is then a polygon whose
-    ///   corner at m is straight (on the segment k k'), and the same argument tiles it with the
-    ///   fan from k.
-    ///
-    /// Nothing moves: every point of W and of the swept volume stays on its side, and no new
-    /// crossing can arise. (In an embedded mesh "k lies in every plane of m's triangles" already
-    /// forces one of the two shapes; the walk checks them rather than rely on that.)
-    ///
-    /// Exact: only for integer coordinates below 2^15 in magnitude (voxel corners, and
-    /// endpoints chosen by earlier collapses like this one). Then the normals' components
-    /// (< 2^33) and the plane tests n·(x - o) (< 2^51) are exact in f64. The angle sums are
-    /// rounded, but π and 2π are far from the other multiples of π they could be.
-    fn keeps_surface(&self, a: usize, b: usize, v: DVec3) -> bool {
-        let (m, k) = if v == self.pos[a] {
-            (b, a)
-        } else if v == self.pos[b] {
-            (a, b)
-        } else {
-            return false;
-        };
-        let lattice = |p: &DVec3| {
-            p.to_array()
-                .iter()
-                .all(|x| x.fract() == 0.0 && x.abs() < 32768.0)
-        };
-        let (o, pk) = (self.pos[m], self.pos[k]);
-        // m's triangles in order around m, starting with the one whose link edge leaves k:
-        // (link edge p -> q, positions of the triangle, its normal).
-        let star = &self.star[m];
-        let mut fan: Vec<(u32, u32, [DVec3; 3], DVec3)> = Vec::with_capacity(star.len());
-        for &t in star {
-            let tri = self.tris[t as usize];
-            let p = tri.map(|x| self.pos[x as usize]);
-            if !p.iter().all(lattice) {
-                return false;
+    /// Commits a checked batch in its order (a rejected edge is parked), then returns the
+    /// `deferred` candidates to the queue. True once the mesh has at most `target` triangles.
+    fn commit_batch(
+        &mut self,
+        heap: &mut Queue,
+        parked: &mut HashMap<u32, Vec<u32>>,
+        ready: Vec<((u32, u32), Result<Plan, Reject>)>,
+        deferred: Vec<Candidate>,
+        target: usize,
+    ) -> bool {
+        let mut batch_moved = Vec::new();
+        for ((a, b), outcome) in ready {
+            if self.live_tris <= target {
+                return true;
             }
-            let i = tri
-                .iter()
-                .position(|&x| x as usize == m)
-                .expect("m in its star");
-            let n = (p[1] - p[0]).cross(p[2] - p[0]);
-            // k must lie in every plane of m's triangles.
-            if n == DVec3::ZERO || n.dot(pk - o) != 0.0 {
-                return false;
-            }
-            fan.push((tri[(i + 1) % 3], tri[(i + 2) % 3], p, n));
-        }
-        let mut at = k as u32;
-        for i in 0..fan.len() {
-            let Some(j) = (i..fan.len()).find(|&j| fan[j].0 == at) else {
-                return false;
+            let mut plan = match outcome {
+                Ok(plan) => plan,
+                Err(why) => {
+                    self.stats.count(why);
+                    park(parked, a, b);
+                    continue;
+                }
             };
-            fan.swap(i, j);
-            at = fan[i].1;
-        }
-        if at != k as u32 {
-            return false;
-        }
-        // Walk around: a plane change between consecutive triangles happens at their common
-        // edge (m, q); sum the angles at m per plane.
-        let same_plane = |n: DVec3, p: &[DVec3; 3]| p.iter().all(|&x| n.dot(x - o) == 0.0);
-        let facing = |n: DVec3, u: DVec3| {
-            let j = u.abs().max_position();
-            n[j] * u[j] > 0.0
-        };
-        let mut changes = Vec::new();
-        let mut angles = [0.0f64; 2];
-        let mut plane = 0;
-        for i in 0..fan.len() {
-            let (p, q, _, n) = fan[i];
-            let (e1, e2) = (self.pos[p as usize] - o, self.pos[q as usize] - o);
-            angles[plane] += e1.cross(e2).length().atan2(e1.dot(e2));
-            let next = &fan[(i + 1) % fan.len()];
-            if !(same_plane(n, &next.2) && facing(n, next.3)) {
-                changes.push(q);
-                plane = 1 - plane;
+            let fresh = std::mem::take(&mut plan.fresh);
+            if !self.commit(plan, &mut batch_moved) {
+                park(parked, a, b);
+                continue;
+            }
+            // Edges at a have a new cost: fresh candidates (their old entries are stale by a's
+            // version). Edges at a's neighbours keep their cost and their heap entries, but
+            // their stars now hold moved triangles, so those rejected earlier may pass now:
+            // they come back.
+            parked.remove(&a);
+            for (nb, cost) in fresh {
+                let c = Candidate {
+                    cost: cost as f32,
+                    a,
+                    b: nb,
+                    ver: self.version[a as usize] + self.version[nb as usize],
+                };
+                self.push(heap, c);
+                self.retry_parked(parked, heap, nb, a);
             }
         }
-        let pi = std::f64::consts::PI;
-        match changes.as_slice() {
-            [] => (angles[0] - 2.0 * pi).abs() < 1e-6,
-            [k2, k1] if *k1 == k as u32 => {
-                let d = self.pos[*k2 as usize] - o;
-                let e = pk - o;
-                e.cross(d) == DVec3::ZERO
-                    && e.dot(d) < 0.0
-                    && (angles[0] - pi).abs() < 1e-6
-                    && (angles[1] - pi).abs() < 1e-6
-            }
-            _ => false,
+        for c in deferred {
+            self.push(heap, c);
         }
+        self.live_tris <= target
     }
 
     /// Apply a checked plan unless its new triangles meet a triangle moved earlier in this batch
@@ -1152,7 +964,7 @@ mod tests {
         let block = boxed([14, 14, 14], [2.0, 2.0, 2.0], [12.0, 12.0, 12.0]);
         let rough = (0..3).map(|seed| crate::voxel::test_support::random([14, 14, 14], seed));
         for (seed, cls) in std::iter::once(block).chain(rough).enumerate() {
-            let mut s = State::new(extract(&cls), defaults());
+            let mut s = State::new(extract(&cls));
             let mut scratch = Scratch::new(&cls, s.tris.len());
             for round in 0..4 {
                 for t in 0..s.tris.len() {
@@ -1162,7 +974,8 @@ mod tests {
                     let tri = s.tris[t];
                     let (a, b) = (tri[round % 3] as usize, tri[(round + 1) % 3] as usize);
                     let v = if round % 2 == 0 { s.pos[a] } else { s.pos[b] };
-                    let Ok(plan) = s.check(&mut scratch, a, b, v) else {
+                    let region = s.region(a as u32, b as u32);
+                    let Ok(plan) = region.check(&mut scratch.prox, &defaults(), v) else {
                         continue;
                     };
                     if !plan.in_plane {

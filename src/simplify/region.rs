@@ -1,0 +1,339 @@
+//! The local checks of one collapse, on a copy of the triangles around its edge: topology,
+//! flips, whether the surface keeps its point set, the tolerance band and the swept region. They
+//! read nothing else, so they run while earlier batches commit (the self-intersection test,
+//! which reads the whole mesh, follows the commit: `State::crosses_nothing`).
+
+use std::collections::{BTreeSet, HashMap};
+
+use glam::DVec3;
+
+use super::{cheapest, Plan, Quadric, Reject, SimplifyOptions};
+use crate::band::Proximity;
+
+/// The triangles around edge (a, b) and their vertices, copied from the mesh when the edge joins
+/// a batch. The regions of the batches in flight are disjoint (their vertex sets), and a commit
+/// changes only its own region's triangles and vertices, so the copy stays exact until this
+/// edge's own commit.
+pub(super) struct Region {
+    pub a: u32,
+    pub b: u32,
+    /// The triangles with a or b: (id, vertex ids), sorted by id.
+    pub tris: Vec<(u32, [u32; 3])>,
+    /// Their vertices: (id, position, quadric), sorted by id.
+    pub verts: Vec<(u32, DVec3, Quadric)>,
+}
+
+impl Region {
+    fn vert(&self, x: u32) -> &(u32, DVec3, Quadric) {
+        let at = self.verts.binary_search_by_key(&x, |v| v.0);
+        &self.verts[at.expect("a vertex of the region")]
+    }
+
+    fn pos(&self, x: u32) -> DVec3 {
+        self.vert(x).1
+    }
+
+    fn places(&self, tri: [u32; 3]) -> [DVec3; 3] {
+        tri.map(|x| self.pos(x))
+    }
+
+    /// v's triangles (v = a or b: the region holds their whole stars).
+    fn star(&self, v: u32) -> impl Iterator<Item = &(u32, [u32; 3])> {
+        self.tris.iter().filter(move |(_, tri)| tri.contains(&v))
+    }
+
+    /// v's neighbours, sorted (v = a or b).
+    fn neighbours(&self, v: u32) -> Vec<u32> {
+        let mut out: Vec<u32> = self
+            .star(v)
+            .flat_map(|(_, tri)| *tri)
+            .filter(|&x| x != v)
+            .collect();
+        out.sort_unstable();
+        out.dedup();
+        out
+    }
+
+    /// The cheapest target for the collapse ([`cheapest`]).
+    pub fn target(&self) -> DVec3 {
+        let ((_, pa, qa), (_, pb, qb)) = (self.vert(self.a), self.vert(self.b));
+        cheapest(qa, *pa, qb, *pb).1
+    }
+
+    /// Whether v's triangles form one closed fan (a disc around v); v = a or b.
+    fn is_manifold(&self, v: u32) -> bool {
+        // Each triangle contributes its edge opposite v, oriented; one fan means these edges
+        // chain into a single cycle through every link vertex once.
+        let mut next = HashMap::new();
+        for (_, tri) in self.star(v) {
+            let k = tri.iter().position(|&x| x == v).expect("v in its star");
+            let (p, q) = (tri[(k + 1) % 3], tri[(k + 2) % 3]);
+            if next.insert(p, q).is_some() {
+                return false;
+            }
+        }
+        let Some(&start) = next.keys().next() else {
+            return false;
+        };
+        let (mut at, mut steps) = (start, 0);
+        loop {
+            let Some(&n) = next.get(&at) else {
+                return false;
+            };
+            at = n;
+            steps += 1;
+            if at == start {
+                return steps == next.len();
+            }
+            if steps > next.len() {
+                return false;
+            }
+        }
+    }
+
+    /// The checks of collapsing the edge to `v` that read only the region: topology, flips, and
+    /// unless the surface keeps its point set, the tolerance band and the swept region (`prox`:
+    /// the worker's distance memo).
+    pub fn check(
+        &self,
+        prox: &mut Proximity,
+        opts: &SimplifyOptions,
+        v: DVec3,
+    ) -> Result<Plan, Reject> {
+        let (a, b) = (self.a, self.b);
+        // Topology: a two-face edge between manifold vertices, and the link condition.
+        let shared: Vec<u32> = self
+            .star(a)
+            .filter(|(_, tri)| tri.contains(&b))
+            .map(|(t, _)| *t)
+            .collect();
+        if shared.len() != 2 || !self.is_manifold(a) || !self.is_manifold(b) {
+            return Err(Reject::Topology);
+        }
+        let opposite: Vec<u32> = self
+            .star(a)
+            .filter(|(_, tri)| tri.contains(&b))
+            .map(|(_, tri)| {
+                *tri.iter()
+                    .find(|&&x| x != a && x != b)
+                    .expect("third vertex")
+            })
+            .collect();
+        let (na, nb) = (self.neighbours(a), self.neighbours(b));
+        let common = na.iter().filter(|x| nb.binary_search(x).is_ok()).count();
+        // The edge part of the link condition: if triangles (a, c, d) and (b, c, d) both exist
+        // for the opposite vertices c, d (a tetrahedron-like component), the collapse would
+        // leave two coincident triangles enclosing nothing.
+        let (c, d) = (opposite[0], opposite[1]);
+        let spans_cd = |v: u32| {
+            self.star(v)
+                .any(|(_, tri)| tri.contains(&c) && tri.contains(&d))
+        };
+        if common != 2 || c == d || (spans_cd(a) && spans_cd(b)) {
+            return Err(Reject::Topology);
+        }
+
+        // The triangles around the edge before, and those that survive with a, b moved to v.
+        let old: Vec<[DVec3; 3]> = self.tris.iter().map(|(_, tri)| self.places(*tri)).collect();
+        let mut changed: Vec<(u32, [DVec3; 3], [DVec3; 3])> = Vec::new();
+        for ((t, tri), p) in self.tris.iter().zip(&old) {
+            if shared.contains(t) {
+                continue;
+            }
+            let q = tri.map(|x| if x == a || x == b { v } else { self.pos(x) });
+            changed.push((*t, q, *p));
+        }
+        for (_, q, _) in &changed {
+            let n_new = (q[1] - q[0]).cross(q[2] - q[0]);
+            if n_new.length_squared() <= 1e-18 {
+                return Err(Reject::Flip);
+            }
+        }
+        for (_, q, p) in &changed {
+            let n_old = (p[1] - p[0]).cross(p[2] - p[0]);
+            let n_new = (q[1] - q[0]).cross(q[2] - q[0]);
+            if n_old.dot(n_new) <= 0.0 {
+                return Err(Reject::Flip);
+            }
+        }
+        // Triangles of the kept endpoint's star that do not hold the other one stay where they
+        // are when v is that endpoint: they are already within the band and cross nothing, so
+        // only the moved ones are checked (against the unchanged ones too) and re-filed.
+        let ids = |t: u32| {
+            let at = self.tris.binary_search_by_key(&t, |x| x.0);
+            let tri = self.tris[at.expect("a triangle of the region")].1;
+            tri.map(|x| if x == b { a } else { x })
+        };
+        let (unchanged, changed): (Vec<_>, Vec<_>) = changed.into_iter().partition(|c| c.1 == c.2);
+        let unchanged: Vec<([u32; 3], [DVec3; 3])> =
+            unchanged.iter().map(|(t, q, _)| (ids(*t), *q)).collect();
+        let new: Vec<([u32; 3], [DVec3; 3])> =
+            changed.iter().map(|(t, q, _)| (ids(*t), *q)).collect();
+        let in_plane = self.keeps_surface(v);
+        if !in_plane {
+            band_and_sweep(prox, opts, v, &old, &new)?;
+        }
+        let (qa, qb) = (&self.vert(a).2, &self.vert(b).2);
+        let qv = qa.add(qb);
+        let fresh = na
+            .iter()
+            .chain(&nb)
+            .copied()
+            .filter(|&x| x != a && x != b)
+            .collect::<BTreeSet<u32>>()
+            .into_iter()
+            .map(|x| {
+                let (_, p, q) = self.vert(x);
+                (x, cheapest(&qv, v, q, *p).0)
+            })
+            .collect();
+        Ok(Plan {
+            a: a as usize,
+            b: b as usize,
+            v,
+            shared,
+            around: self.tris.iter().map(|(t, _)| *t).collect(),
+            changed: changed.iter().map(|(t, q, _)| (*t, *q)).collect(),
+            new,
+            unchanged,
+            fresh,
+            in_plane,
+        })
+    }
+
+    /// Whether collapsing (a, b) to `v` leaves the surface the same point set, so that the
+    /// band, sweep and intersection checks hold without being run (the flip check has passed:
+    /// no new triangle is degenerate or turned against its old normal).
+    ///
+    /// So it is when v is one endpoint, k, and the other, m, is flat or on a straight crease
+    /// through k:
+    /// - flat: m's triangles lie in one plane, facing the same way, winding once around m
+    ///   (angles summing to 2π). They tile the polygon L of their outer edges, star-shaped from
+    ///   m; after the collapse the fan from k over the same outer edges has boundary L as well,
+    ///   and with every new triangle facing the plane's way, the number of new triangles over a
+    ///   point is L's winding number there: they tile L exactly;
+    /// - crease: m's triangles lie in two planes, both through k, each plane's triangles
+    ///   contiguous around m with angles summing to π, and the two crease edges are (m, k) and
+    ///   (m, k') with m strictly between k and k'. Each plane's half is then a polygon whose
+    ///   corner at m is straight (on the segment k k'), and the same argument tiles it with the
+    ///   fan from k.
+    ///
+    /// Nothing moves: every point of W and of the swept volume stays on its side, and no new
+    /// crossing can arise. (In an embedded mesh "k lies in every plane of m's triangles" already
+    /// forces one of the two shapes; the walk checks them rather than rely on that.)
+    ///
+    /// Exact: only for integer coordinates below 2^15 in magnitude (voxel corners, and
+    /// endpoints chosen by earlier collapses like this one). Then the normals' components
+    /// (< 2^33) and the plane tests n·(x - o) (< 2^51) are exact in f64. The angle sums are
+    /// rounded, but π and 2π are far from the other multiples of π they could be.
+    fn keeps_surface(&self, v: DVec3) -> bool {
+        let (a, b) = (self.a, self.b);
+        let (m, k) = if v == self.pos(a) {
+            (b, a)
+        } else if v == self.pos(b) {
+            (a, b)
+        } else {
+            return false;
+        };
+        let lattice = |p: &DVec3| {
+            p.to_array()
+                .iter()
+                .all(|x| x.fract() == 0.0 && x.abs() < 32768.0)
+        };
+        let (o, pk) = (self.pos(m), self.pos(k));
+        // m's triangles in order around m, starting with the one whose link edge leaves k:
+        // (link edge p -> q, positions of the triangle, its normal).
+        let mut fan: Vec<(u32, u32, [DVec3; 3], DVec3)> = Vec::new();
+        for (_, tri) in self.star(m) {
+            let p = self.places(*tri);
+            if !p.iter().all(lattice) {
+                return false;
+            }
+            let i = tri.iter().position(|&x| x == m).expect("m in its star");
+            let n = (p[1] - p[0]).cross(p[2] - p[0]);
+            // k must lie in every plane of m's triangles.
+            if n == DVec3::ZERO || n.dot(pk - o) != 0.0 {
+                return false;
+            }
+            fan.push((tri[(i + 1) % 3], tri[(i + 2) % 3], p, n));
+        }
+        let mut at = k;
+        for i in 0..fan.len() {
+            let Some(j) = (i..fan.len()).find(|&j| fan[j].0 == at) else {
+                return false;
+            };
+            fan.swap(i, j);
+            at = fan[i].1;
+        }
+        if at != k {
+            return false;
+        }
+        // Walk around: a plane change between consecutive triangles happens at their common
+        // edge (m, q); sum the angles at m per plane.
+        let same_plane = |n: DVec3, p: &[DVec3; 3]| p.iter().all(|&x| n.dot(x - o) == 0.0);
+        let facing = |n: DVec3, u: DVec3| {
+            let j = u.abs().max_position();
+            n[j] * u[j] > 0.0
+        };
+        let mut changes = Vec::new();
+        let mut angles = [0.0f64; 2];
+        let mut plane = 0;
+        for i in 0..fan.len() {
+            let (p, q, _, n) = fan[i];
+            let (e1, e2) = (self.pos(p) - o, self.pos(q) - o);
+            angles[plane] += e1.cross(e2).length().atan2(e1.dot(e2));
+            let next = &fan[(i + 1) % fan.len()];
+            if !(same_plane(n, &next.2) && facing(n, next.3)) {
+                changes.push(q);
+                plane = 1 - plane;
+            }
+        }
+        let pi = std::f64::consts::PI;
+        match changes.as_slice() {
+            [] => (angles[0] - 2.0 * pi).abs() < 1e-6,
+            [k2, k1] if *k1 == k => {
+                let d = self.pos(*k2) - o;
+                let e = pk - o;
+                e.cross(d) == DVec3::ZERO
+                    && e.dot(d) < 0.0
+                    && (angles[0] - pi).abs() < 1e-6
+                    && (angles[1] - pi).abs() < 1e-6
+            }
+            _ => false,
+        }
+    }
+}
+
+/// The band and sweep checks of a collapse to `v`: the triangles around the edge at their `old`
+/// places, `new` the survivors that move (ids after the collapse, new places).
+fn band_and_sweep(
+    prox: &mut Proximity,
+    opts: &SimplifyOptions,
+    v: DVec3,
+    old: &[[DVec3; 3]],
+    new: &[([u32; 3], [DVec3; 3])],
+) -> Result<(), Reject> {
+    // Tolerance band for the new surface; the new vertex first, the likeliest to be out.
+    let (eps, r_min) = (opts.eps, opts.min_radius);
+    if prox.distance(v).0 > eps
+        || !new
+            .iter()
+            .all(|(_, q)| prox.triangle_within(*q, eps, r_min))
+    {
+        return Err(Reject::Band);
+    }
+    // The region swept by the collapse: the tetrahedra (old triangle, v) must hold no point of W
+    // deeper than eps_sweep, hence no point of the swept volume. A tetrahedron with v at a
+    // corner of its triangle is that triangle, which lies within eps of ∂W (every live triangle
+    // does): no point of W deeper than eps <= eps_sweep.
+    let es = opts.eps_sweep;
+    for p in old {
+        if eps <= es && p.contains(&v) {
+            continue;
+        }
+        if !prox.tetrahedron_shallow([p[0], p[1], p[2], v], es, r_min) {
+            return Err(Reject::Sweep);
+        }
+    }
+    Ok(())
+}
