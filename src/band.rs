@@ -128,14 +128,9 @@ const NODE_BUDGET: usize = 4096;
 
 /// The memo entry of voxel `v`, computed from the classifier.
 fn compute(cls: &Classifier, v: [isize; 3]) -> u128 {
-    let here = cls.inside(v[0], v[1], v[2]);
-    let mut m = 0u128;
-    for (n, o) in BLOCK.iter().enumerate() {
-        let [di, dj, dk] = o.map(|x| x as isize - 2);
-        if cls.inside(v[0] + di, v[1] + dj, v[2] + dk) != here {
-            m |= 1 << n;
-        }
-    }
+    let inside = cls.block5(v.map(|x| x - 2));
+    let here = inside >> 62 & 1 == 1; // the middle voxel: n = 25·2 + 5·2 + 2
+    let m = if here { !inside } else { inside } & OPPOSITE_BITS;
     let mut kept = 0u128;
     for (n, dominators) in DOMINATORS.iter().enumerate() {
         if m >> n & 1 == 1 && m & dominators == 0 {

@@ -42,6 +42,19 @@ impl RangeImage {
         }
     }
 
+    /// The inside range along the ray through (col, row_from_bottom), both possibly outside
+    /// the image (then empty), cut to the grid's `n` voxels along the ray.
+    fn range(&self, col: isize, row_from_bottom: isize, rows: usize, n: usize) -> (i32, i32) {
+        if col < 0 || row_from_bottom < 0 || col as usize >= self.width {
+            return (1, 0);
+        }
+        if row_from_bottom as usize >= rows {
+            return (1, 0);
+        }
+        let i = row_from_bottom as usize * self.width + col as usize;
+        (self.lo[i].max(0), self.hi[i].min(n as i32 - 1))
+    }
+
     /// Whether index `t` along the ray through (col, row_from_bottom) is inside.
     fn contains(&self, col: usize, row_from_bottom: usize, t: usize) -> bool {
         let i = row_from_bottom * self.width + col;
@@ -87,6 +100,46 @@ impl Classifier {
         }
         let (i, j, k) = (i as usize, j as usize, k as usize);
         self.x.contains(k, j, i) && self.y.contains(i, k, j) && self.z.contains(i, j, k)
+    }
+}
+
+impl Classifier {
+    /// The voxels of the 5×5×5 block with lowest corner `lo`: bit 25·dk + 5·dj + di set when
+    /// voxel lo + (di, dj, dk) is inside (as [`Self::inside`]). Reads the 75 pixel ranges of
+    /// the block's rays once instead of three per voxel.
+    pub fn block5(&self, lo: [isize; 3]) -> u128 {
+        let [nx, ny, nz] = self.dims;
+        let [i0, j0, k0] = lo;
+        // Ranges along x of the rays (col k, row j), along y (col i, row k), along z (col i,
+        // row j), relative to the block's corner.
+        let mut rx = [(0i32, 0i32); 25];
+        let mut ry = [(0i32, 0i32); 25];
+        let mut rz = [(0i32, 0i32); 25];
+        for u in 0..5 {
+            for w in 0..5 {
+                let (du, dw) = (u as isize, w as isize);
+                let shift = |(a, b): (i32, i32), by: isize| (a - by as i32, b - by as i32);
+                rx[5 * u + w] = shift(self.x.range(k0 + dw, j0 + du, ny, nx), i0); // u = dj, w = dk
+                ry[5 * u + w] = shift(self.y.range(i0 + du, k0 + dw, nz, ny), j0); // u = di, w = dk
+                rz[5 * u + w] = shift(self.z.range(i0 + du, j0 + dw, ny, nz), k0);
+                // u = di, w = dj
+            }
+        }
+        let within = |(a, b): (i32, i32), t: i32| a <= t && t <= b;
+        let mut m = 0u128;
+        for dk in 0..5 {
+            for dj in 0..5 {
+                for di in 0..5 {
+                    if within(rx[5 * dj + dk], di as i32)
+                        && within(ry[5 * di + dk], dj as i32)
+                        && within(rz[5 * di + dj], dk as i32)
+                    {
+                        m |= 1 << (25 * dk + 5 * dj + di);
+                    }
+                }
+            }
+        }
+        m
     }
 }
 
@@ -175,5 +228,55 @@ pub(crate) mod test_support {
             }
         }
         Classifier::new(&images)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::test_support::from_ranges;
+
+    /// `block5` agrees with `inside` voxel by voxel, on random ranges that run past the grid's
+    /// ends and blocks that hang over every face and corner of it.
+    #[test]
+    fn blocks_agree_with_single_voxels() {
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut unit = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f32 / (1u64 << 53) as f32
+        };
+        let dims = [7, 6, 5];
+        let ranges: Vec<Option<(f32, f32)>> = (0..3 * 64)
+            .map(|_| {
+                let a = unit() * 5.0 - 2.0;
+                (unit() < 0.95).then_some((a, a + 2.0 + unit() * 6.0))
+            })
+            .collect();
+        let cls = from_ranges(dims, |axis, u, v| {
+            ranges[64 * axis + 8 * (u as usize) + v as usize]
+        });
+        let (mut inside, mut outside) = (0, 0);
+        for k0 in -5..7 {
+            for j0 in -5..8 {
+                for i0 in -5..9 {
+                    let block = cls.block5([i0, j0, k0]);
+                    for n in 0..125 {
+                        let (di, dj, dk) = (n % 5, n / 5 % 5, n / 25);
+                        let want = cls.inside(i0 + di, j0 + dj, k0 + dk);
+                        assert_eq!(block >> n & 1 == 1, want, "block {i0},{j0},{k0} bit {n}");
+                        if want {
+                            inside += 1;
+                        } else {
+                            outside += 1;
+                        }
+                    }
+                }
+            }
+        }
+        assert!(
+            inside > 3000 && outside > 3000,
+            "{inside} inside, {outside} outside"
+        );
     }
 }
