@@ -261,22 +261,31 @@ impl<'c> Proximity<'c> {
     }
 
     /// Adaptive refinement shared by the region tests. Each piece (centroid c, circumradius R
-    /// about c, so the piece lies in the ball B(c, R)) gets `judge(piece, R, nearest(c))`: pass,
-    /// fail, or refine. A piece to refine with R < `r_min`, or more than [`NODE_BUDGET`] pieces
-    /// in all, fails the region (not shown: always sound).
+    /// about c, so the piece lies in the ball B(c, R)) passes at once when `inherited(piece,
+    /// parent's Near)` says so (the voxels found for its parent often serve it too, and cost no
+    /// lookup); otherwise it gets `judge(piece, R, nearest(c))`: pass, fail, or refine. A piece
+    /// to refine with R < `r_min`, or more than [`NODE_BUDGET`] pieces in all, fails the
+    /// region (not shown: always sound).
     fn refine<const N: usize>(
         &mut self,
         start: [DVec3; N],
         r_min: f64,
         mut judge: impl FnMut(&Self, &[DVec3; N], f64, &Near) -> Verdict,
+        inherited: impl Fn(&[DVec3; N], &Near) -> bool,
         split: impl Fn(&[DVec3; N], &mut Vec<[DVec3; N]>),
     ) -> bool {
-        let mut stack = vec![start];
+        // Pieces to judge, each with the index of its parent's Near in `parents`.
+        let mut stack: Vec<([DVec3; N], u32)> = vec![(start, u32::MAX)];
+        let mut parents: Vec<Near> = Vec::new();
+        let mut children: Vec<[DVec3; N]> = Vec::new();
         let mut visited = 0;
-        while let Some(piece) = stack.pop() {
+        while let Some((piece, parent)) = stack.pop() {
             visited += 1;
             if visited > NODE_BUDGET {
                 return false;
+            }
+            if parent != u32::MAX && inherited(&piece, &parents[parent as usize]) {
+                continue;
             }
             let c = piece.iter().sum::<DVec3>() / N as f64;
             let r = piece
@@ -289,7 +298,13 @@ impl<'c> Proximity<'c> {
                 Verdict::Pass => {}
                 Verdict::Fail => return false,
                 Verdict::Refine if r < r_min => return false,
-                Verdict::Refine => split(&piece, &mut stack),
+                Verdict::Refine => {
+                    children.clear();
+                    split(&piece, &mut children);
+                    let at = parents.len() as u32;
+                    parents.push(near);
+                    stack.extend(children.iter().map(|ch| (*ch, at)));
+                }
             }
         }
         true
@@ -302,7 +317,8 @@ impl<'c> Proximity<'c> {
     ///   c: a point of the piece in a voxel of c's class is within its distance to the latter of
     ///   ∂W, one in a voxel of the other class within its distance to the former (a segment
     ///   between cubes of different classes meets ∂W), and distances to cubes are convex, so at
-    ///   most `limit` over the piece when at most that at its corners; or
+    ///   most `limit` over the piece when at most that at its corners (any inside cube and
+    ///   outside cube would do: a piece first tries its parent's pair); or
     /// - it lies on ∂W ([`Self::on_boundary_plane`]).
     ///
     /// It fails when dist(c) > limit (c itself is out). Pieces split into four at their edge
@@ -325,6 +341,11 @@ impl<'c> Proximity<'c> {
                 Verdict::Refine
             }
         };
+        let inherited = |piece: &[DVec3; 3], parent: &Near| {
+            parent.other.is_some_and(|o| {
+                corners_within(piece, o, limit) && corners_within(piece, parent.home, limit)
+            })
+        };
         let split = |t: &[DVec3; 3], out: &mut Vec<[DVec3; 3]>| {
             let m = [
                 (t[0] + t[1]) / 2.0,
@@ -338,7 +359,7 @@ impl<'c> Proximity<'c> {
                 [m[0], m[1], m[2]],
             ]);
         };
-        self.refine(t, r_min, judge, split)
+        self.refine(t, r_min, judge, inherited, split)
     }
 
     /// Whether tetrahedron `t` misses every point inside W deeper than `limit` (< REACH) below
@@ -347,7 +368,8 @@ impl<'c> Proximity<'c> {
     /// - c lies outside W with dist(c) ≥ R (the open ball then holds no point of W), or
     /// - its corners are within `limit` of one outside voxel (c's own when c is outside, else
     ///   the outside voxel nearest to c): a point of the piece inside W is within its distance
-    ///   to that voxel of ∂W, and that distance is convex, so at most `limit` over the piece, or
+    ///   to that voxel of ∂W, and that distance is convex, so at most `limit` over the piece
+    ///   (any outside voxel would do: a piece first tries its parent's), or
     /// - it is flat on ∂W.
     ///
     /// It fails when c is inside W deeper than `limit`. Pieces split in two at the midpoint of
@@ -369,6 +391,14 @@ impl<'c> Proximity<'c> {
                 Verdict::Refine
             }
         };
+        let inherited = |piece: &[DVec3; 4], parent: &Near| {
+            let outside_voxel = if parent.inside {
+                parent.other
+            } else {
+                Some(parent.home)
+            };
+            outside_voxel.is_some_and(|o| corners_within(piece, o, limit))
+        };
         let split = |t: &[DVec3; 4], out: &mut Vec<[DVec3; 4]>| {
             let (mut a, mut b, mut longest) = (0, 1, -1.0);
             for i in 0..4 {
@@ -385,11 +415,12 @@ impl<'c> Proximity<'c> {
             right[b] = m;
             out.extend([left, right]);
         };
-        self.refine(t, r_min, judge, split)
+        self.refine(t, r_min, judge, inherited, split)
     }
 }
 
 /// What [`Proximity::nearest`] finds about a point.
+#[derive(Clone, Copy)]
 struct Near {
     /// dist(p, ∂W) when below [`REACH`], else REACH.
     dist: f64,
