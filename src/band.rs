@@ -110,6 +110,27 @@ pub struct Proximity<'c> {
     slots: Vec<[u64; 3]>,
     /// The last entry looked up (key, entry); key u64::MAX: none.
     last: (u64, u128),
+    /// Buffers of [`Self::refine`], kept between calls.
+    triangles: Refinement<3>,
+    tetrahedra: Refinement<4>,
+}
+
+/// The work lists of one [`Proximity::refine`]: pieces to judge, each with the index of its
+/// parent's [`Near`] in `parents`, and the split of the piece last refined.
+struct Refinement<const N: usize> {
+    stack: Vec<([DVec3; N], u32)>,
+    parents: Vec<Near>,
+    children: Vec<[DVec3; N]>,
+}
+
+impl<const N: usize> Default for Refinement<N> {
+    fn default() -> Self {
+        Refinement {
+            stack: Vec::new(),
+            parents: Vec::new(),
+            children: Vec::new(),
+        }
+    }
 }
 
 /// Memo entry bit holding the voxel's own class.
@@ -152,6 +173,8 @@ impl<'c> Proximity<'c> {
             cls,
             slots: vec![[0; 3]; n],
             last: (u64::MAX, 0),
+            triangles: Refinement::default(),
+            tetrahedra: Refinement::default(),
         }
     }
 
@@ -268,16 +291,21 @@ impl<'c> Proximity<'c> {
     /// region (not shown: always sound).
     fn refine<const N: usize>(
         &mut self,
+        work: &mut Refinement<N>,
         start: [DVec3; N],
         r_min: f64,
         mut judge: impl FnMut(&Self, &[DVec3; N], f64, &Near) -> Verdict,
         inherited: impl Fn(&[DVec3; N], &Near) -> bool,
         split: impl Fn(&[DVec3; N], &mut Vec<[DVec3; N]>),
     ) -> bool {
-        // Pieces to judge, each with the index of its parent's Near in `parents`.
-        let mut stack: Vec<([DVec3; N], u32)> = vec![(start, u32::MAX)];
-        let mut parents: Vec<Near> = Vec::new();
-        let mut children: Vec<[DVec3; N]> = Vec::new();
+        let Refinement {
+            stack,
+            parents,
+            children,
+        } = work;
+        stack.clear();
+        parents.clear();
+        stack.push((start, u32::MAX));
         let mut visited = 0;
         while let Some((piece, parent)) = stack.pop() {
             visited += 1;
@@ -300,7 +328,7 @@ impl<'c> Proximity<'c> {
                 Verdict::Refine if r < r_min => return false,
                 Verdict::Refine => {
                     children.clear();
-                    split(&piece, &mut children);
+                    split(&piece, children);
                     let at = parents.len() as u32;
                     parents.push(near);
                     stack.extend(children.iter().map(|ch| (*ch, at)));
@@ -359,7 +387,10 @@ impl<'c> Proximity<'c> {
                 [m[0], m[1], m[2]],
             ]);
         };
-        self.refine(t, r_min, judge, inherited, split)
+        let mut work = std::mem::take(&mut self.triangles);
+        let within = self.refine(&mut work, t, r_min, judge, inherited, split);
+        self.triangles = work;
+        within
     }
 
     /// Whether tetrahedron `t` misses every point inside W deeper than `limit` (< REACH) below
@@ -415,7 +446,10 @@ impl<'c> Proximity<'c> {
             right[b] = m;
             out.extend([left, right]);
         };
-        self.refine(t, r_min, judge, inherited, split)
+        let mut work = std::mem::take(&mut self.tetrahedra);
+        let shallow = self.refine(&mut work, t, r_min, judge, inherited, split);
+        self.tetrahedra = work;
+        shallow
     }
 }
 

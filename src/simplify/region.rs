@@ -3,8 +3,6 @@
 //! read nothing else, so they run while earlier batches commit (the self-intersection test,
 //! which reads the whole mesh, follows the commit: `State::crosses_nothing`).
 
-use std::collections::{BTreeSet, HashMap};
-
 use glam::DVec3;
 
 use super::{cheapest, Plan, Quadric, Reject, SimplifyOptions};
@@ -64,28 +62,29 @@ impl Region {
     fn is_manifold(&self, v: u32) -> bool {
         // Each triangle contributes its edge opposite v, oriented; one fan means these edges
         // chain into a single cycle through every link vertex once.
-        let mut next = HashMap::new();
+        let mut link: Vec<(u32, u32)> = Vec::with_capacity(16);
         for (_, tri) in self.star(v) {
             let k = tri.iter().position(|&x| x == v).expect("v in its star");
             let (p, q) = (tri[(k + 1) % 3], tri[(k + 2) % 3]);
-            if next.insert(p, q).is_some() {
+            if link.iter().any(|e| e.0 == p) {
                 return false;
             }
+            link.push((p, q));
         }
-        let Some(&start) = next.keys().next() else {
+        let Some(&(start, _)) = link.first() else {
             return false;
         };
         let (mut at, mut steps) = (start, 0);
         loop {
-            let Some(&n) = next.get(&at) else {
+            let Some(&(_, n)) = link.iter().find(|e| e.0 == at) else {
                 return false;
             };
             at = n;
             steps += 1;
             if at == start {
-                return steps == next.len();
+                return steps == link.len();
             }
-            if steps > next.len() {
+            if steps > link.len() {
                 return false;
             }
         }
@@ -175,12 +174,15 @@ impl Region {
         }
         let (qa, qb) = (&self.vert(a).2, &self.vert(b).2);
         let qv = qa.add(qb);
-        let fresh = na
+        let mut around_v: Vec<u32> = na
             .iter()
             .chain(&nb)
             .copied()
             .filter(|&x| x != a && x != b)
-            .collect::<BTreeSet<u32>>()
+            .collect();
+        around_v.sort_unstable();
+        around_v.dedup();
+        let fresh = around_v
             .into_iter()
             .map(|x| {
                 let (_, p, q) = self.vert(x);
