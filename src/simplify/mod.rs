@@ -393,11 +393,7 @@ fn simplify_in_pool(
         let worker = rayon::current_thread_index().unwrap_or(0) % scratches.len();
         scratches[worker].lock().expect("one user per worker")
     };
-    let mut gatherer = Gatherer {
-        stamp: vec![0; n],
-        batch_no: 0,
-        region: Vec::new(),
-    };
+    let mut gatherer = Gatherer::new(n);
     // Rejected edges by endpoint (each under both), retried once a collapse changes the
     // triangles around them.
     let mut parked: HashMap<u32, Vec<u32>> = HashMap::new();
@@ -452,13 +448,23 @@ fn simplify_in_pool(
 /// Draws batches from the queue: candidates still current whose regions (a, b and their
 /// neighbours) meet no region in flight.
 struct Gatherer {
-    /// Per vertex, the last batch whose region held it.
+    /// Per vertex, the number of the last batch whose region held it.
     stamp: Vec<u32>,
     batch_no: u32,
     region: Vec<usize>,
 }
 
 impl Gatherer {
+    /// For a mesh of `n` vertices. Batches are numbered from 2 up, and batch k conflicts with
+    /// the stamps k and k - 1: the initial stamps, 0, with none.
+    fn new(n: usize) -> Self {
+        Gatherer {
+            stamp: vec![0; n],
+            batch_no: 1,
+            region: Vec::new(),
+        }
+    }
+
     /// The next batch (up to [`BATCH`] regions, cheapest first) and the candidates deferred
     /// because their regions meet this batch's or the previous one's (not yet committed):
     /// they go back to the queue once that one commits.
@@ -1022,6 +1028,58 @@ mod tests {
             }
         }
         assert!(flat > 100 && crease > 100, "flat {flat}, crease {crease}");
+    }
+
+    /// Batches in flight never share a vertex of their regions, and the first batch is full:
+    /// three batches gathered back to back from a fresh block, each against the one before.
+    #[test]
+    fn batches_in_flight_have_disjoint_regions() {
+        let cls = boxed([30, 30, 30], [2.0, 2.0, 2.0], [28.0, 28.0, 28.0]);
+        let s = State::new(extract(&cls));
+        let mut all = Vec::new();
+        for tri in &s.tris {
+            for k in 0..3 {
+                let (a, b) = (tri[k], tri[(k + 1) % 3]);
+                if a < b {
+                    all.push(s.candidate(a, b));
+                }
+            }
+        }
+        let total = all.len();
+        let mut heap = Queue::new(all);
+        let mut gatherer = Gatherer::new(s.pos.len());
+        let vertices = |batch: &[Region]| -> Vec<u32> {
+            let mut v: Vec<u32> = batch
+                .iter()
+                .flat_map(|r| r.verts.iter().map(|x| x.0))
+                .collect();
+            v.sort_unstable();
+            v
+        };
+        let mut previous: Vec<u32> = Vec::new();
+        let mut deferred = 0;
+        for round in 0..3 {
+            let (batch, later) = gatherer.gather(&s, &mut heap);
+            assert_eq!(batch.len(), BATCH, "round {round}: a full batch");
+            let mut here = vertices(&batch);
+            let count = here.len();
+            here.dedup();
+            assert_eq!(
+                here.len(),
+                count,
+                "round {round}: regions of one batch overlap"
+            );
+            assert!(
+                here.iter().all(|v| previous.binary_search(v).is_err()),
+                "round {round}: a region meets the batch in flight"
+            );
+            deferred += later.len();
+            previous = here;
+        }
+        assert!(
+            deferred < total / 2,
+            "{deferred} of {total} candidates deferred"
+        );
     }
 
     #[test]
