@@ -323,6 +323,12 @@ struct Plan {
     in_plane: bool,
 }
 
+/// The triangles a committed plan moved, as after its collapse (ids, places), and their box.
+struct Moved {
+    fan: (DVec3, DVec3),
+    tris: Vec<([u32; 3], [DVec3; 3])>,
+}
+
 #[derive(Clone, Copy, Debug)]
 enum Reject {
     Topology,
@@ -758,8 +764,9 @@ impl State {
     }
 
     /// Apply a checked plan unless its new triangles meet a triangle moved earlier in this batch
-    /// (`batch_moved`, ids and positions as now; the plan's own new ones are added to it).
-    fn commit(&mut self, plan: Plan, batch_moved: &mut Vec<([u32; 3], [DVec3; 3])>) -> bool {
+    /// (`batch_moved`, the new triangles of each earlier plan, ids and positions as now, with
+    /// their bounding box; the plan's own are added to it).
+    fn commit(&mut self, plan: Plan, batch_moved: &mut Vec<Moved>) -> bool {
         let Plan {
             a,
             b,
@@ -776,14 +783,18 @@ impl State {
         if in_plane {
             self.stats.collapses_in_plane += 1;
         } else {
-            for (ti, q) in &new {
-                let mut pairs = batch_moved.iter().copied();
-                if pairs.any(|(ui, up)| boxes_meet(q, &up) && conflict(*ti, *q, ui, up)) {
-                    self.stats.rejected_intersection += 1;
-                    return false;
+            let places: Vec<DVec3> = new.iter().flat_map(|(_, q)| *q).collect();
+            let fan = bounds(&places);
+            for earlier in batch_moved.iter().filter(|m| bounds_meet(m.fan, fan)) {
+                for (ti, q) in &new {
+                    let mut pairs = earlier.tris.iter().copied();
+                    if pairs.any(|(ui, up)| boxes_meet(q, &up) && conflict(*ti, *q, ui, up)) {
+                        self.stats.rejected_intersection += 1;
+                        return false;
+                    }
                 }
             }
-            batch_moved.extend(new.iter().copied());
+            batch_moved.push(Moved { fan, tris: new });
         }
 
         // Apply: b merges into a at v.
