@@ -152,9 +152,11 @@ fn compute(cls: &Classifier, v: [isize; 3]) -> u128 {
     let inside = cls.block5(v.map(|x| x - 2));
     let here = inside >> 62 & 1 == 1; // the middle voxel: n = 25·2 + 5·2 + 2
     let m = if here { !inside } else { inside } & OPPOSITE_BITS;
-    let mut kept = 0u128;
-    for (n, dominators) in DOMINATORS.iter().enumerate() {
-        if m >> n & 1 == 1 && m & dominators == 0 {
+    let (mut kept, mut bits) = (0u128, m);
+    while bits != 0 {
+        let n = bits.trailing_zeros() as usize;
+        bits &= bits - 1;
+        if m & DOMINATORS[n] == 0 {
             kept |= 1 << n;
         }
     }
