@@ -43,7 +43,9 @@ impl RangeImage {
     }
 
     /// The inside range along the ray through (col, row_from_bottom), both possibly outside
-    /// the image (then empty), cut to the grid's `n` voxels along the ray.
+    /// the image (then empty), cut to the grid's `n` voxels along the ray: both ends in
+    /// [-1, n], so callers may shift them by grid offsets without overflow (a depth of 2^31
+    /// voxels or more is stored as i32::MAX).
     fn range(&self, col: isize, row_from_bottom: isize, rows: usize, n: usize) -> (i32, i32) {
         if col < 0 || row_from_bottom < 0 || col as usize >= self.width {
             return (1, 0);
@@ -52,7 +54,10 @@ impl RangeImage {
             return (1, 0);
         }
         let i = row_from_bottom as usize * self.width + col as usize;
-        (self.lo[i].max(0), self.hi[i].min(n as i32 - 1))
+        (
+            self.lo[i].clamp(0, n as i32),
+            self.hi[i].clamp(-1, n as i32 - 1),
+        )
     }
 
     /// Whether index `t` along the ray through (col, row_from_bottom) is inside.
@@ -247,10 +252,14 @@ mod tests {
             (state >> 11) as f32 / (1u64 << 53) as f32
         };
         let dims = [7, 6, 5];
+        // Some rays' ranges start or end beyond 2^31 voxels (stored as i32::MAX).
         let ranges: Vec<Option<(f32, f32)>> = (0..3 * 64)
             .map(|_| {
                 let a = unit() * 5.0 - 2.0;
-                (unit() < 0.95).then_some((a, a + 2.0 + unit() * 6.0))
+                let far = unit() < 0.1;
+                let b = if far { 1e30 } else { a + 2.0 + unit() * 6.0 };
+                let a = if far && unit() < 0.5 { 1e30 } else { a };
+                (unit() < 0.95).then_some((a, b))
             })
             .collect();
         let cls = from_ranges(dims, |axis, u, v| {
