@@ -117,20 +117,11 @@ pub struct Proximity<'c> {
 
 /// The work lists of one [`Proximity::refine`]: pieces to judge, each with the index of its
 /// parent's [`Near`] in `parents`, and the split of the piece last refined.
+#[derive(Default)]
 struct Refinement<const N: usize> {
     stack: Vec<([DVec3; N], u32)>,
     parents: Vec<Near>,
     children: Vec<[DVec3; N]>,
-}
-
-impl<const N: usize> Default for Refinement<N> {
-    fn default() -> Self {
-        Refinement {
-            stack: Vec::new(),
-            parents: Vec::new(),
-            children: Vec::new(),
-        }
-    }
 }
 
 /// Memo entry bit holding the voxel's own class.
@@ -357,11 +348,8 @@ impl<'c> Proximity<'c> {
         debug_assert!(limit < REACH && r_min > 0.0);
         let judge = |me: &Self, piece: &[DVec3; 3], r: f64, near: &Near| {
             let d = near.dist;
-            let hugged = |o: [isize; 3]| {
-                corners_within(piece, o, limit) && corners_within(piece, near.home, limit)
-            };
             if d + r <= limit
-                || near.other.is_some_and(hugged)
+                || near.hugged(piece, limit)
                 || (r > limit && me.on_boundary_plane(piece))
             {
                 Verdict::Pass
@@ -371,11 +359,7 @@ impl<'c> Proximity<'c> {
                 Verdict::Refine
             }
         };
-        let inherited = |piece: &[DVec3; 3], parent: &Near| {
-            parent.other.is_some_and(|o| {
-                corners_within(piece, o, limit) && corners_within(piece, parent.home, limit)
-            })
-        };
+        let inherited = |piece: &[DVec3; 3], parent: &Near| parent.hugged(piece, limit);
         let split = |t: &[DVec3; 3], out: &mut Vec<[DVec3; 3]>| {
             let m = [
                 (t[0] + t[1]) / 2.0,
@@ -411,10 +395,9 @@ impl<'c> Proximity<'c> {
         debug_assert!(limit < REACH && r_min > 0.0);
         let judge = |me: &Self, piece: &[DVec3; 4], r: f64, near: &Near| {
             let (d, inside) = (near.dist, near.inside);
-            let outside_voxel = if inside { near.other } else { Some(near.home) };
             if d + r <= limit
                 || (!inside && d >= r)
-                || outside_voxel.is_some_and(|o| corners_within(piece, o, limit))
+                || near.outside_hugs(piece, limit)
                 || (r > limit && me.on_boundary_plane(piece))
             {
                 Verdict::Pass
@@ -424,14 +407,7 @@ impl<'c> Proximity<'c> {
                 Verdict::Refine
             }
         };
-        let inherited = |piece: &[DVec3; 4], parent: &Near| {
-            let outside_voxel = if parent.inside {
-                parent.other
-            } else {
-                Some(parent.home)
-            };
-            outside_voxel.is_some_and(|o| corners_within(piece, o, limit))
-        };
+        let inherited = |piece: &[DVec3; 4], parent: &Near| parent.outside_hugs(piece, limit);
         let split = |t: &[DVec3; 4], out: &mut Vec<[DVec3; 4]>| {
             let (mut a, mut b, mut longest) = (0, 1, -1.0);
             for i in 0..4 {
@@ -466,6 +442,27 @@ struct Near {
     home: [isize; 3],
     /// The voxel of the other class nearest to p, when within [`REACH`].
     other: Option<[isize; 3]>,
+}
+
+impl Near {
+    /// Whether `piece`'s corners are within `limit` of both p's voxel and the other-class voxel
+    /// (one inside cube and one outside cube: the triangle test's corner condition).
+    fn hugged<const N: usize>(&self, piece: &[DVec3; N], limit: f64) -> bool {
+        self.other.is_some_and(|o| {
+            corners_within(piece, o, limit) && corners_within(piece, self.home, limit)
+        })
+    }
+
+    /// Whether `piece`'s corners are within `limit` of one outside voxel: p's own when it is
+    /// outside, else the outside voxel nearest to p (the tetrahedron test's corner condition).
+    fn outside_hugs<const N: usize>(&self, piece: &[DVec3; N], limit: f64) -> bool {
+        let outside = if self.inside {
+            self.other
+        } else {
+            Some(self.home)
+        };
+        outside.is_some_and(|o| corners_within(piece, o, limit))
+    }
 }
 
 /// Whether every corner of a piece is within `limit` of voxel cube `v` (then every point of the

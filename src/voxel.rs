@@ -47,10 +47,8 @@ impl RangeImage {
     /// [-1, n], so callers may shift them by grid offsets without overflow (a depth of 2^31
     /// voxels or more is stored as i32::MAX).
     fn range(&self, col: isize, row_from_bottom: isize, rows: usize, n: usize) -> (i32, i32) {
-        if col < 0 || row_from_bottom < 0 || col as usize >= self.width {
-            return (1, 0);
-        }
-        if row_from_bottom as usize >= rows {
+        let outside = |x: isize, len: usize| x < 0 || x as usize >= len;
+        if outside(col, self.width) || outside(row_from_bottom, rows) {
             return (1, 0);
         }
         let i = row_from_bottom as usize * self.width + col as usize;
@@ -120,14 +118,14 @@ impl Classifier {
         let mut rx = [(0i32, 0i32); 25];
         let mut ry = [(0i32, 0i32); 25];
         let mut rz = [(0i32, 0i32); 25];
+        let shift = |(a, b): (i32, i32), by: isize| (a - by as i32, b - by as i32);
         for u in 0..5 {
             for w in 0..5 {
                 let (du, dw) = (u as isize, w as isize);
-                let shift = |(a, b): (i32, i32), by: isize| (a - by as i32, b - by as i32);
-                rx[5 * u + w] = shift(self.x.range(k0 + dw, j0 + du, ny, nx), i0); // u = dj, w = dk
-                ry[5 * u + w] = shift(self.y.range(i0 + du, k0 + dw, nz, ny), j0); // u = di, w = dk
+                // x: u = dj, w = dk; y: u = di, w = dk; z: u = di, w = dj.
+                rx[5 * u + w] = shift(self.x.range(k0 + dw, j0 + du, ny, nx), i0);
+                ry[5 * u + w] = shift(self.y.range(i0 + du, k0 + dw, nz, ny), j0);
                 rz[5 * u + w] = shift(self.z.range(i0 + du, j0 + dw, ny, nz), k0);
-                // u = di, w = dj
             }
         }
         let within = |(a, b): (i32, i32), t: i32| a <= t && t <= b;

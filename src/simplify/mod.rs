@@ -524,6 +524,15 @@ fn cheapest(qa: &Quadric, pa: DVec3, qb: &Quadric, pb: DVec3) -> (f64, DVec3) {
     best
 }
 
+/// Whether triangle `t` (ids, places) conflicts with one of `others` ([`conflict`], boxes first).
+fn meets_any<'a>(
+    t: &([u32; 3], [DVec3; 3]),
+    mut others: impl Iterator<Item = &'a ([u32; 3], [DVec3; 3])>,
+) -> bool {
+    let (ti, q) = t;
+    others.any(|(ui, up)| boxes_meet(q, up) && conflict(*ti, *q, *ui, *up))
+}
+
 /// Parks rejected edge (a, b) under both endpoints, once.
 fn park(parked: &mut HashMap<u32, Vec<u32>>, a: u32, b: u32) {
     for (x, y) in [(a, b), (b, a)] {
@@ -704,9 +713,8 @@ impl State {
             })
             .filter(|(_, up)| bounds_meet(fan_box, bounds(up)))
             .collect();
-        for (k, (ti, q)) in new.iter().enumerate() {
-            let mut pairs = others.iter().chain(&new[k + 1..]).chain(unchanged).copied();
-            if pairs.any(|(ui, up)| boxes_meet(q, &up) && conflict(*ti, *q, ui, up)) {
+        for (k, t) in new.iter().enumerate() {
+            if meets_any(t, others.iter().chain(&new[k + 1..]).chain(unchanged)) {
                 return Err(Reject::Intersection);
             }
         }
@@ -786,12 +794,9 @@ impl State {
             let places: Vec<DVec3> = new.iter().flat_map(|(_, q)| *q).collect();
             let fan = bounds(&places);
             for earlier in batch_moved.iter().filter(|m| bounds_meet(m.fan, fan)) {
-                for (ti, q) in &new {
-                    let mut pairs = earlier.tris.iter().copied();
-                    if pairs.any(|(ui, up)| boxes_meet(q, &up) && conflict(*ti, *q, ui, up)) {
-                        self.stats.rejected_intersection += 1;
-                        return false;
-                    }
+                if new.iter().any(|t| meets_any(t, earlier.tris.iter())) {
+                    self.stats.rejected_intersection += 1;
+                    return false;
                 }
             }
             batch_moved.push(Moved { fan, tris: new });

@@ -101,29 +101,19 @@ impl Region {
     ) -> Result<Plan, Reject> {
         let (a, b) = (self.a, self.b);
         // Topology: a two-face edge between manifold vertices, and the link condition.
-        let shared: Vec<u32> = self
-            .star(a)
-            .filter(|(_, tri)| tri.contains(&b))
-            .map(|(t, _)| *t)
-            .collect();
-        if shared.len() != 2 || !self.is_manifold(a) || !self.is_manifold(b) {
+        let on_edge: Vec<&(u32, [u32; 3])> =
+            self.star(a).filter(|(_, tri)| tri.contains(&b)).collect();
+        if on_edge.len() != 2 || !self.is_manifold(a) || !self.is_manifold(b) {
             return Err(Reject::Topology);
         }
-        let opposite: Vec<u32> = self
-            .star(a)
-            .filter(|(_, tri)| tri.contains(&b))
-            .map(|(_, tri)| {
-                *tri.iter()
-                    .find(|&&x| x != a && x != b)
-                    .expect("third vertex")
-            })
-            .collect();
+        let shared: Vec<u32> = on_edge.iter().map(|(t, _)| *t).collect();
+        let third = |tri: &[u32; 3]| *tri.iter().find(|&&x| x != a && x != b).expect("a third");
+        let (c, d) = (third(&on_edge[0].1), third(&on_edge[1].1));
         let (na, nb) = (self.neighbours(a), self.neighbours(b));
         let common = na.iter().filter(|x| nb.binary_search(x).is_ok()).count();
         // The edge part of the link condition: if triangles (a, c, d) and (b, c, d) both exist
         // for the opposite vertices c, d (a tetrahedron-like component), the collapse would
         // leave two coincident triangles enclosing nothing.
-        let (c, d) = (opposite[0], opposite[1]);
         let spans_cd = |v: u32| {
             self.star(v)
                 .any(|(_, tri)| tri.contains(&c) && tri.contains(&d))
@@ -134,21 +124,26 @@ impl Region {
 
         // The triangles around the edge before, and those that survive with a, b moved to v.
         let old: Vec<[DVec3; 3]> = self.tris.iter().map(|(_, tri)| self.places(*tri)).collect();
-        let mut changed: Vec<(u32, [DVec3; 3], [DVec3; 3])> = Vec::new();
+        let mut survivors: Vec<Survivor> = Vec::new();
         for ((t, tri), p) in self.tris.iter().zip(&old) {
             if shared.contains(t) {
                 continue;
             }
             let q = tri.map(|x| if x == a || x == b { v } else { self.pos(x) });
-            changed.push((*t, q, *p));
+            survivors.push(Survivor {
+                id: *t,
+                ids: tri.map(|x| if x == b { a } else { x }),
+                new: q,
+                old: *p,
+            });
         }
-        for (_, q, _) in &changed {
+        for Survivor { new: q, .. } in &survivors {
             let n_new = (q[1] - q[0]).cross(q[2] - q[0]);
             if n_new.length_squared() <= 1e-18 {
                 return Err(Reject::Flip);
             }
         }
-        for (_, q, p) in &changed {
+        for Survivor { new: q, old: p, .. } in &survivors {
             let n_old = (p[1] - p[0]).cross(p[2] - p[0]);
             let n_new = (q[1] - q[0]).cross(q[2] - q[0]);
             if n_old.dot(n_new) <= 0.0 {
@@ -158,16 +153,11 @@ impl Region {
         // Triangles of the kept endpoint's star that do not hold the other one stay where they
         // are when v is that endpoint: they are already within the band and cross nothing, so
         // only the moved ones are checked (against the unchanged ones too) and re-filed.
-        let ids = |t: u32| {
-            let at = self.tris.binary_search_by_key(&t, |x| x.0);
-            let tri = self.tris[at.expect("a triangle of the region")].1;
-            tri.map(|x| if x == b { a } else { x })
-        };
-        let (unchanged, changed): (Vec<_>, Vec<_>) = changed.into_iter().partition(|c| c.1 == c.2);
+        let (unchanged, changed): (Vec<_>, Vec<_>) =
+            survivors.into_iter().partition(|c| c.new == c.old);
         let unchanged: Vec<([u32; 3], [DVec3; 3])> =
-            unchanged.iter().map(|(t, q, _)| (ids(*t), *q)).collect();
-        let new: Vec<([u32; 3], [DVec3; 3])> =
-            changed.iter().map(|(t, q, _)| (ids(*t), *q)).collect();
+            unchanged.iter().map(|c| (c.ids, c.new)).collect();
+        let new: Vec<([u32; 3], [DVec3; 3])> = changed.iter().map(|c| (c.ids, c.new)).collect();
         let in_plane = self.keeps_surface(v);
         if !in_plane {
             band_and_sweep(prox, opts, v, &old, &new)?;
@@ -195,7 +185,7 @@ impl Region {
             v,
             shared,
             around: self.tris.iter().map(|(t, _)| *t).collect(),
-            changed: changed.iter().map(|(t, q, _)| (*t, *q)).collect(),
+            changed: changed.iter().map(|c| (c.id, c.new)).collect(),
             new,
             unchanged,
             fresh,
@@ -304,6 +294,16 @@ impl Region {
             _ => false,
         }
     }
+}
+
+/// A triangle around the edge that survives the collapse.
+struct Survivor {
+    id: u32,
+    /// Its vertex ids after the collapse (b becomes a).
+    ids: [u32; 3],
+    /// Its places after and before.
+    new: [DVec3; 3],
+    old: [DVec3; 3],
 }
 
 /// The band and sweep checks of a collapse to `v`: the triangles around the edge at their `old`
