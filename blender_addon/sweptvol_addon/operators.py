@@ -12,7 +12,7 @@ import time
 import bpy
 import numpy as np
 
-from . import exchange, prefs
+from . import compat, exchange, prefs
 
 COLLECTION = "Swept Volumes"
 MATERIAL = "sweptvol swept volume"
@@ -161,6 +161,23 @@ def sample(context, objects, frames):
 # Submitting
 
 
+def _one_line(e):
+    """An exception as one line for a report: Blender's own errors carry 'Error: ' and newlines."""
+    text = " ".join(str(e).replace("Error: ", "").split())
+    return text or type(e).__name__
+
+
+def gltf_exporter_properties():
+    """{identifier: None, or the enum's identifiers} of this Blender's glTF export operator."""
+    try:
+        props = bpy.ops.export_scene.gltf.get_rna_type().properties
+    except (AttributeError, KeyError, RuntimeError) as e:
+        raise RuntimeError("the glTF exporter is not available: enable the bundled "
+                           f"'glTF 2.0 format' add-on ({_one_line(e)})") from e
+    return {p.identifier: ({i.identifier for i in p.enum_items} if p.type == "ENUM" else None)
+            for p in props}
+
+
 def export_generator(context, objects, path):
     """glTF export of exactly `objects` (one node each, modifiers applied) at the current frame."""
     view_layer = context.view_layer
@@ -172,12 +189,13 @@ def export_generator(context, objects, path):
         for o in objects:
             o.select_set(True)
         view_layer.objects.active = objects[0]
-        bpy.ops.export_scene.gltf(
-            filepath=path, export_format="GLB", use_selection=True, export_apply=True,
-            export_current_frame=True, export_animations=False, export_skins=False,
-            export_morph=False, export_materials="NONE", export_texcoords=False,
-            export_normals=False, export_colors=False, export_cameras=False,
-            export_lights=False, export_extras=False, export_yup=True)
+        options = compat.gltf_export_options(gltf_exporter_properties(), path)
+        try:
+            result = bpy.ops.export_scene.gltf(**options)
+        except (TypeError, RuntimeError) as e:  # a refused option, or the exporter's own error
+            raise RuntimeError(f"the glTF export failed: {_one_line(e)}") from e
+        if "FINISHED" not in result or not os.path.isfile(path):
+            raise RuntimeError(f"the glTF export did not finish ({', '.join(sorted(result))})")
     finally:
         for o in objects:
             o.select_set(False)
@@ -238,14 +256,17 @@ def _material():
     if mat is None:
         mat = bpy.data.materials.new(MATERIAL)
         mat.diffuse_color = (0.15, 0.55, 1.0, 0.3)  # solid view: semi-transparent
-        mat.use_nodes = True
-        bsdf = mat.node_tree.nodes.get("Principled BSDF")
+        if mat.node_tree is None:  # up to 4.5 a new material has no nodes; 5.0 always has them
+            mat.use_nodes = True  # (5.0 deprecates use_nodes: not touched where not needed)
+        nodes = mat.node_tree.nodes if mat.node_tree is not None else None
+        bsdf = nodes.get("Principled BSDF") if nodes is not None else None
         if bsdf is not None:
-            bsdf.inputs["Base Color"].default_value = (0.15, 0.55, 1.0, 1.0)
-            bsdf.inputs["Alpha"].default_value = 0.3
-        mat.blend_method = "BLEND"
-        mat.shadow_method = "NONE"
-        mat.show_transparent_back = False
+            for name, value in (("Base Color", (0.15, 0.55, 1.0, 1.0)), ("Alpha", 0.3)):
+                socket = bsdf.inputs.get(name)
+                if socket is not None:
+                    socket.default_value = value
+        for key, value in compat.settable(lambda k: hasattr(mat, k)):
+            setattr(mat, key, value)
     return mat
 
 
@@ -368,12 +389,14 @@ def update_job(job):
             job["imported"] = obj.name
             job["line"] = f"done: imported '{obj.name}'"
             _report("INFO", f"swept volume of {job['label']} imported as '{obj.name}'")
-        except Exception as e:
+        except Exception as e:  # noqa: BLE001 (any failure must reach the panel, worded)
             job["state"] = "failed"
-            job["line"] = f"import failed: {e}"
-            _report("ERROR", f"importing the swept volume failed: {e}")
+            job["error"] = f"importing the swept volume failed: {type(e).__name__}: {_one_line(e)}"
+            job["line"] = job["error"]
+            _report("ERROR", job["error"])
     elif state == "failed":
-        _report("ERROR", f"sweptvol failed for {job['label']}: {status.get('message', '')}")
+        job["error"] = f"sweptvol failed for {job['label']}: {status.get('message', '')}"
+        _report("ERROR", job["error"])
     else:
         _report("WARNING", f"sweptvol job for {job['label']} cancelled")
     return True
@@ -455,15 +478,22 @@ class SWEPTVOL_OT_compute(bpy.types.Operator):
             options["resolution"] = int(settings.resolution)
         try:
             job_dir = submit(context, objects, frames, options)
-        except (ValueError, OSError, RuntimeError) as e:
-            self.report({"ERROR"}, str(e))
+        except (ValueError, OSError, RuntimeError) as e:  # the user's data, the folder, export
+            self.report({"ERROR"}, _one_line(e))
+            return {"CANCELLED"}
+        except Exception as e:  # noqa: BLE001 (anything else: still worded, never a traceback)
+            self.report({"ERROR"}, f"submitting the job failed: {type(e).__name__}: {_one_line(e)}")
             return {"CANCELLED"}
         label = "+".join(o.name for o in objects)
         job = {"dir": job_dir, "label": label, "sources": [o.name for o in objects],
                "scene": scene.name, "state": "submitted", "line": "submitted", "progress": 0.0,
                "imported": ""}
         JOBS.append(job)
-        ok, warning = ensure_daemon(p, prefs.watch_folder(p))
+        try:
+            ok, warning = ensure_daemon(p, prefs.watch_folder(p))
+        except OSError as e:  # the binary cannot be run, or its log cannot be written
+            ok, warning = False, (f"cannot start the daemon ({_one_line(e)}); the job waits in "
+                                  "the folder")
         self.report({"INFO"}, f"submitted {len(objects)} object(s), {len(frames)} frames: {job_dir}")
         wait = self.wait if self.properties.is_property_set("wait") else bpy.app.background
         if not wait:
@@ -480,8 +510,10 @@ class SWEPTVOL_OT_compute(bpy.types.Operator):
         if job["state"] == "done":
             self.report({"INFO"}, job["line"])
             return {"FINISHED"}
-        status = exchange.read_status(job_dir) or {}
-        self.report({"ERROR"}, f"sweptvol {job['state']}: {status.get('message', job['line'])}")
+        if job.get("error"):  # the daemon's failure, or ours importing its result
+            self.report({"ERROR"}, job["error"])
+        else:
+            self.report({"ERROR"}, f"sweptvol {job['state']}: {job['line']}")
         return {"CANCELLED"}
 
 
@@ -528,8 +560,9 @@ class SWEPTVOL_OT_import_result(bpy.types.Operator):
             return {"CANCELLED"}
         try:
             obj = import_result(job_dir, context.scene, label)
-        except (ValueError, OSError, KeyError) as e:
-            self.report({"ERROR"}, str(e))
+        except Exception as e:  # noqa: BLE001 (shown worded in the panel, never a traceback)
+            self.report({"ERROR"}, f"importing the swept volume failed: {type(e).__name__}: "
+                        f"{_one_line(e)}")
             return {"CANCELLED"}
         self.report({"INFO"}, f"imported '{obj.name}'")
         return {"FINISHED"}
@@ -548,7 +581,11 @@ class SWEPTVOL_OT_open_depth_images(bpy.types.Operator):
         if job_dir is None:
             self.report({"ERROR"}, "no finished sweptvol job in this session: give its folder")
             return {"CANCELLED"}
-        images = depth_images(job_dir)
+        try:
+            images = depth_images(job_dir)
+        except (RuntimeError, OSError) as e:  # an unreadable image
+            self.report({"ERROR"}, f"cannot load the depth images of {job_dir}: {_one_line(e)}")
+            return {"CANCELLED"}
         if not images:
             self.report({"ERROR"}, f"no depth images in {job_dir}")
             return {"CANCELLED"}

@@ -290,6 +290,9 @@ def test_manifest_and_bl_info_agree():
                 "blender_version_min", "license"):
         assert key in manifest, key
     assert manifest["type"] == "add-on" and manifest["id"] == "sweptvol_addon"
+    # Blender's `extension validate` (run on the real validators by run-e2e-all.sh) refuses a
+    # tagline over 64 characters or ending in punctuation.
+    assert len(manifest["tagline"]) <= 64 and manifest["tagline"][-1:].isalnum()
     tree = ast.parse(open(os.path.join(root, "__init__.py")).read())
     bl_info = next(ast.literal_eval(n.value) for n in tree.body
                    if isinstance(n, ast.Assign) and getattr(n.targets[0], "id", "") == "bl_info")
