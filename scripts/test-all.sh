@@ -65,8 +65,16 @@ bound=$("$venv/bin/python" -c 'import json, sys; print(json.load(open(sys.argv[1
 target/release/sweptvol verify --generator examples/bunny.glb --trajectory examples/bunny-vibration.csv \
     --mesh target/example-results/bunny-vibration.swept.glb --bound "$bound" --bound-scope axis-visible --quiet
 
-say "Blender add-on: exchange code (pytest, no Blender)"
-"$venv/bin/python" -m pytest -q -p no:cacheprovider blender_addon/tests/test_exchange.py
+say "Blender add-on: exchange and version-handling code (pytest, no Blender)"
+"$venv/bin/python" -m pytest -q -p no:cacheprovider blender_addon/tests/test_exchange.py \
+    blender_addon/tests/test_compat.py
 
-say "Blender add-on: real Blender, headless, against a real daemon (CPU backend)"
-blender_addon/tests/run-e2e.sh target/release/sweptvol
+say "Blender add-on: Blender 3.4, 4.2, 4.5, 5.0, legacy and extension installs, headless, real daemon"
+# Debian's Blender 3.4 needs numpy (the add-on and its glTF exporter import it); the PyPI bpy
+# wheels (4.2+, cached outside the repo by setup-bpy.sh) need these X11/GL libraries.
+blender_libs=()
+for p in python3-numpy libxi6 libxxf86vm1 libxfixes3 libxrender1 libgl1 libsm6 libxkbcommon0; do
+    dpkg -s "$p" >/dev/null 2>&1 || blender_libs+=("$p")
+done
+if ((${#blender_libs[@]})); then apt_install "${blender_libs[@]}"; fi
+blender_addon/tests/run-e2e-all.sh target/release/sweptvol

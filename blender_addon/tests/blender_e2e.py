@@ -1,38 +1,54 @@
 """End-to-end test of the add-on in real Blender, with a real `sweptvol watch` daemon.
 
-Run by blender_addon/tests/run-e2e.sh:
+Run by blender_addon/tests/run-e2e.sh, in Blender itself or in PyPI's `bpy` module:
     BLENDER_USER_SCRIPTS=<tmp> blender -b --factory-startup --python-exit-code 1 \
         --python blender_addon/tests/blender_e2e.py -- --zip target/sweptvol_addon.zip \
-        --binary target/release/sweptvol --work <tmp>
+        --binary target/release/sweptvol --work <tmp> [--mode legacy|extension]
+    BLENDER_USER_SCRIPTS=... BLENDER_USER_EXTENSIONS=... python blender_e2e.py --zip ... (bpy)
 
-Installs the add-on zip into the (fresh) user scripts folder, builds a scene with two animated
+Installs the add-on zip into the (fresh) profile, the legacy way (preferences.addon_install +
+addon_enable, module `sweptvol_addon`) or as an extension (extensions.package_install_files, module
+`bl_ext.user_default.sweptvol_addon`; 4.2+), builds a scene with two animated
 objects (one parented, with keyed translation and rotation and a scale that is not 1, one with a
 rigid modifier and a constraint), presses `sweptvol.compute` (the add-on starts the daemon itself), and checks in
 Blender's world coordinates, at every sampled frame:
   1. every vertex (and face centre) of every posed object is inside the imported mesh
      (generalized winding number >= 0.5);
-  2. every vertex of the imported mesh is within the reported bound of the posed objects.
+  2. every vertex of the imported mesh is within the reported bound of the posed objects;
+  3. Blender's non-manifold selection (edit mode, select_non_manifold) on the imported mesh is
+     empty, and so is bmesh's count of non-manifold edges and vertices.
 Also: a deforming object is refused with its name and cause, the depth images load readable,
 a daemon error comes back as a Blender report, cancelling works, disabling the add-on stops the
 daemon it started, and with auto_start off the job is still submitted and the user told.
+An import failure shows its own error (not the daemon's status message), and no deprecation
+warning comes from the add-on's code.
+
+Ends with `e2e: PASS` or `e2e: FAIL ...`, flushed, then os._exit: the bpy module can crash (4.2,
+after a glTF export) or hang (4.5) at interpreter exit, so nothing may run after the verdict.
 """
 
 import argparse
+import importlib
 import json
 import math
 import os
+import shutil
 import sys
 import time
+import traceback
+import warnings
 
 import bpy
 import numpy as np
 
-argv = sys.argv[sys.argv.index("--") + 1:] if "--" in sys.argv else []
+# Blender passes the script's arguments after "--"; the bpy module sees plain sys.argv.
+argv = sys.argv[sys.argv.index("--") + 1:] if "--" in sys.argv else sys.argv[1:]
 ap = argparse.ArgumentParser()
 ap.add_argument("--zip", required=True)
 ap.add_argument("--binary", required=True)
 ap.add_argument("--work", required=True)
 ap.add_argument("--resolution", type=int, default=64)
+ap.add_argument("--mode", choices=("legacy", "extension"), default="legacy")
 args = ap.parse_args(argv)
 
 FRAMES = (1.0, 9.0, 0.5)  # start, end, step: sub-frames included
@@ -47,33 +63,61 @@ def check(cond, message):
         raise AssertionError(message)
 
 
-# ---------------------------------------------------------------------------------------------
-# Install and configure the add-on from the zip, in the fresh profile
+# Checks whose failure is reported at the end (after every other check has run), so that one
+# known problem does not hide the others.
+DEFERRED = []
 
-user_scripts = os.environ.get("BLENDER_USER_SCRIPTS", "")
-check(user_scripts and os.path.isdir(user_scripts), "run with BLENDER_USER_SCRIPTS=<empty tmp dir>")
-bpy.ops.preferences.addon_install(filepath=os.path.abspath(args.zip), overwrite=True)
-bpy.ops.preferences.addon_enable(module="sweptvol_addon")
-import sweptvol_addon  # noqa: E402
-from sweptvol_addon import exchange, operators  # noqa: E402
 
-check(os.path.abspath(sweptvol_addon.__file__).startswith(os.path.abspath(user_scripts)),
-      f"the add-on was not installed from the zip: {sweptvol_addon.__file__}")
-jobs = os.path.join(os.path.abspath(args.work), "jobs")
-os.makedirs(jobs, exist_ok=True)
-prefs = bpy.context.preferences.addons["sweptvol_addon"].preferences
-prefs.watch_folder = jobs
-prefs.sweptvol_binary = os.path.abspath(args.binary)
-prefs.auto_start = True
-prefs.backend = "cpu"
-log("add-on installed and enabled from", args.zip)
+def deferred_check(cond, message):
+    if not cond:
+        log("FAILED (reported at the end):", message)
+        DEFERRED.append(message)
+
 
 # ---------------------------------------------------------------------------------------------
-# The scene
+# Installing the add-on, both ways
 
-for o in list(bpy.data.objects):
-    bpy.data.objects.remove(o)
-scene = bpy.context.scene
+
+def install_addon():
+    """Install args.zip into the fresh profile and enable it; returns the module name."""
+    zip_path = os.path.abspath(args.zip)
+    if args.mode == "legacy":
+        root = os.environ.get("BLENDER_USER_SCRIPTS", "")
+        check(root and os.path.isdir(root), "run with BLENDER_USER_SCRIPTS=<empty tmp dir>")
+        check(bpy.ops.preferences.addon_install(filepath=zip_path, overwrite=True) == {"FINISHED"},
+              "addon_install failed")
+        module = "sweptvol_addon"
+        check(bpy.ops.preferences.addon_enable(module=module) == {"FINISHED"}, "addon_enable failed")
+    else:
+        root = os.environ.get("BLENDER_USER_EXTENSIONS", "")
+        check(root and os.path.isdir(root), "run with BLENDER_USER_EXTENSIONS=<empty tmp dir>")
+        check(hasattr(bpy.ops, "extensions") and "package_install_files" in dir(bpy.ops.extensions),
+              f"Blender {bpy.app.version_string} has no extensions (4.2+ only)")
+        check(bpy.ops.extensions.package_install_files(
+            filepath=zip_path, repo="user_default", enable_on_install=True) == {"FINISHED"},
+            "package_install_files failed")
+        names = [a.module for a in bpy.context.preferences.addons
+                 if a.module.rsplit(".", 1)[-1] == "sweptvol_addon"]
+        check(len(names) == 1, f"expected one enabled sweptvol add-on, got {names}")
+        module = names[0]
+        check(module.startswith("bl_ext.") and module != "sweptvol_addon",
+              f"an extension's module should be bl_ext.<repo>.sweptvol_addon, got {module}")
+    mod = importlib.import_module(module)
+    check(os.path.abspath(mod.__file__).startswith(os.path.realpath(root))
+          or os.path.realpath(mod.__file__).startswith(os.path.realpath(root)),
+          f"the add-on was not installed from the zip into {root}: {mod.__file__}")
+    return module
+
+
+def configure(module, jobs, auto_start):
+    """Set the add-on's preferences, looked up by the module it was enabled as."""
+    prefs = bpy.context.preferences.addons[module].preferences
+    prefs.watch_folder = jobs
+    prefs.sweptvol_binary = os.path.abspath(args.binary)
+    prefs.auto_start = auto_start
+    prefs.backend = "cpu"
+    check(prefs.watch_folder == jobs and prefs.auto_start == auto_start, "preferences not set")
+    return prefs
 
 
 def key(obj, frame, loc=None, rot=None):
@@ -84,109 +128,10 @@ def key(obj, frame, loc=None, rot=None):
         obj.rotation_euler = [math.radians(a) for a in rot]
         obj.keyframe_insert("rotation_euler", frame=frame)
 
-
-# A parent empty that moves and turns; its child (a non-uniformly scaled box) turns on its own.
-carrier = bpy.data.objects.new("Carrier", None)
-scene.collection.objects.link(carrier)
-carrier.scale = (1.2, 1.2, 1.2)
-key(carrier, 1, loc=(0, 0, 0), rot=(0, 0, 0))
-key(carrier, 9, loc=(1.0, 0.5, 0.3), rot=(0, 0, 60))
-
-bpy.ops.mesh.primitive_cube_add(size=1.0, location=(0.4, 0, 0))
-part = bpy.context.active_object
-part.name = "Part"
-part.scale = (1.5, 0.5, 0.8)
-scene.frame_set(5)  # parent while the carrier is posed: a non-identity parent inverse
-part.parent = carrier
-part.matrix_parent_inverse = carrier.matrix_world.inverted()
-key(part, 1, loc=(0.4, 0, 0), rot=(0, 0, 0))
-key(part, 9, loc=(0.6, 0.1, 0.2), rot=(90, 0, 30))
-
-# A second object with its own animation and a rigid modifier (bevel), scaled 0.7.
-bpy.ops.mesh.primitive_cylinder_add(vertices=12, radius=0.3, depth=1.0, location=(-1.5, 0, 0))
-bar = bpy.context.active_object
-bar.name = "Bar, the second"  # a comma: the CSV must quote the node name
-bar.scale = (0.7, 0.7, 0.7)
-bev = bar.modifiers.new("Bevel", "BEVEL")
-bev.width = 0.05
-key(bar, 1, loc=(-1.5, 0, 0), rot=(0, 0, 0))
-key(bar, 9, loc=(-1.0, 0.8, 0.5), rot=(45, 30, 0))
-clamp = bar.constraints.new("LIMIT_LOCATION")  # constraints count: x stops at -1.2
-clamp.use_max_x, clamp.max_x = True, -1.2
-
-# A deforming object (animated shape key): must be refused by name and cause.
-bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=1, radius=0.3, location=(0, -2, 0))
-blob = bpy.context.active_object
-blob.name = "Blob"
-blob.shape_key_add(name="Basis")
-sk = blob.shape_key_add(name="Squash")
-for v in sk.data:
-    v.co.z *= 0.3
-sk.value = 0.0
-sk.keyframe_insert("value", frame=1)
-sk.value = 1.0
-sk.keyframe_insert("value", frame=9)
-
-scene.frame_start, scene.frame_end = 1, 9
-scene.frame_set(1)
-settings = scene.sweptvol
-settings.use_scene_range = False
-settings.frame_start, settings.frame_end, settings.frame_step = FRAMES
-settings.accuracy = "RESOLUTION"
-settings.resolution = args.resolution
-
-
 def select(objs):
     for o in bpy.context.view_layer.objects:
         o.select_set(o in objs)
     bpy.context.view_layer.objects.active = objs[0]
-
-
-# ---------------------------------------------------------------------------------------------
-# 1. The deforming object is refused, naming it and the cause, and nothing is submitted
-
-select([part, blob])
-try:
-    bpy.ops.sweptvol.compute(wait=True, timeout=60)
-    raise AssertionError("the deforming object was not refused")
-except RuntimeError as e:
-    msg = str(e)
-    log("refused as expected:", msg.strip())
-    check("'Blob'" in msg and "shape keys" in msg, f"the refusal should name Blob and shape keys: {msg}")
-check(not [n for n in os.listdir(jobs) if not n.startswith(".")], f"a refused job left files: {os.listdir(jobs)}")
-
-# ---------------------------------------------------------------------------------------------
-# 2. Compute: export -> job folder -> daemon (started by the add-on) -> import
-
-select([part, bar])
-t0 = time.monotonic()
-result = bpy.ops.sweptvol.compute(wait=True, timeout=400)
-check(result == {"FINISHED"}, f"compute returned {result}")
-log(f"computed and imported in {time.monotonic() - t0:.1f} s")
-job = operators.JOBS[-1]
-check(job["state"] == "done", f"job state {job['state']}")
-check(exchange.daemon_alive(jobs)[0], "the add-on did not start a daemon (no heartbeat)")
-csv_text = open(os.path.join(job["dir"], "trajectory.csv")).read()
-check('"Bar, the second"' in csv_text, "the node name with a comma is not quoted in the CSV")
-job_json = json.load(open(os.path.join(job["dir"], "job.json")))
-check(job_json.get("resolution") == args.resolution and job_json.get("backend") == "cpu", f"job.json {job_json}")
-
-coll = bpy.data.collections.get("Swept Volumes")
-check(coll is not None and coll.name in scene.collection.children, "no 'Swept Volumes' collection in the scene")
-check(len(coll.objects) == 1, f"expected one imported object, got {[o.name for o in coll.objects]}")
-swept = coll.objects[0]
-check("Part" in swept.name, f"the imported object is not named after the source: {swept.name}")
-bound = float(swept["sweptvol_hausdorff_bound"])
-check(bound > 0 and swept.get("sweptvol_triangles", 0) > 0 and swept.get("sweptvol_poses", 0) > 0,
-      f"custom properties missing: {dict(swept.items())}")
-mat = swept.data.materials[0]
-check(mat.blend_method == "BLEND" and mat.diffuse_color[3] < 1.0, "the material is not semi-transparent")
-log(f"imported '{swept.name}': {len(swept.data.polygons)} faces, bound {bound:.4g}, "
-    f"poses {swept['sweptvol_poses']}")
-
-# ---------------------------------------------------------------------------------------------
-# 3. Geometry checks in Blender world coordinates
-
 
 def world_mesh(obj):
     """(vertices (n,3), triangles (m,3,3)) of an object's evaluated mesh in world space now."""
@@ -257,103 +202,335 @@ def point_triangle_distance(points, tris):
     return best
 
 
-sv, swept_tris = world_mesh(swept)
-check(len(swept_tris) > 0, "the imported mesh is empty")
-check(abs(winding_numbers(np.array([[100.0, 100.0, 100.0]]), swept_tris)[0]) < 1e-6,
-      "the imported mesh is not closed (winding number far away is not 0)")
+def non_manifold_check(obj):
+    """Blender's own non-manifold selection (edit mode) and bmesh's counts on `obj`'s mesh:
+    every edge with exactly two faces of consistent winding, every vertex a single fan."""
+    import bmesh
 
-start, end, step = FRAMES
-frames = [start + k * step for k in range(int(round((end - start) / step)) + 1)]
-posed_points, posed_tris = [], []
-for f in frames:
-    scene.frame_set(int(math.floor(f)), subframe=f - math.floor(f))
-    for obj in (part, bar):
-        verts, tris = world_mesh(obj)
-        posed_points += [verts, tris.mean(axis=1)]
-        posed_tris.append(tris)
-scene.frame_set(1)
-points = np.concatenate(posed_points)
-all_tris = np.concatenate(posed_tris)
-wn = winding_numbers(points, swept_tris)
-outside = np.flatnonzero(wn < 0.5)
-log(f"inside check: {len(points)} posed points over {len(frames)} frames, winding numbers "
-    f"{wn.min():.4f}..{wn.max():.4f}")
-check(len(outside) == 0, f"{len(outside)} posed points are outside the swept volume, e.g. "
-      f"{points[outside[:3]].tolist()} (winding {wn[outside[:3]].tolist()})")
-dist = point_triangle_distance(sv, all_tris)
-log(f"bound check: {len(sv)} mesh vertices, farthest {dist.max():.5g} from the posed objects, "
-    f"bound {bound:.5g}")
-check(dist.max() <= bound + 1e-6, f"an imported vertex is {dist.max()} from the posed objects, "
-      f"beyond the reported bound {bound} (at {sv[dist.argmax()].tolist()})")
+    bm = bmesh.new()
+    bm.from_mesh(obj.data)
+    bad_edges = [e for e in bm.edges if not e.is_manifold]
+    by_faces = {}
+    for e in bad_edges:
+        by_faces.setdefault(len(e.link_faces), []).append(e)
+    bad_verts = [v for v in bm.verts if not v.is_manifold]
+    m = np.array(obj.matrix_world)
+    where = [(m[:3, :3] @ np.array(v.co, dtype=float) + m[:3, 3]).round(4).tolist() for v in bad_verts[:5]]
+    bm.free()
 
-# ---------------------------------------------------------------------------------------------
-# 4. Depth images open readable; import_result works on its own
+    view_layer = bpy.context.view_layer
+    old_sel, old_active = [o for o in view_layer.objects if o.select_get()], view_layer.objects.active
+    for o in view_layer.objects:
+        o.select_set(o == obj)
+    view_layer.objects.active = obj
+    bpy.ops.object.mode_set(mode="EDIT")
+    try:
+        bpy.ops.mesh.select_mode(type="VERT")
+        bpy.ops.mesh.select_all(action="DESELECT")
+        bpy.ops.mesh.select_non_manifold()
+    finally:
+        bpy.ops.object.mode_set(mode="OBJECT")
+        for o in view_layer.objects:
+            o.select_set(o in old_sel)
+        view_layer.objects.active = old_active
+    selected = sum(1 for v in obj.data.vertices if v.select)
+    edges_sel = sum(1 for e in obj.data.edges if e.select)
+    log(f"non-manifold check on '{obj.name}' ({len(obj.data.vertices)} vertices, "
+        f"{len(obj.data.edges)} edges): select_non_manifold selects {selected} vertices and "
+        f"{edges_sel} edges; bmesh: {len(bad_edges)} non-manifold edges "
+        f"({', '.join(f'{len(v)} with {k} faces' for k, v in sorted(by_faces.items())) or 'none'}), "
+        f"{len(bad_verts)} non-manifold vertices" + (f", e.g. at {where}" if where else ""))
+    deferred_check(selected == 0 and not bad_edges and not bad_verts,
+                   f"the imported mesh is not manifold: select_non_manifold selected {selected} "
+                   f"vertices / {edges_sel} edges, bmesh found {len(bad_edges)} non-manifold edges "
+                   f"and {len(bad_verts)} non-manifold vertices (e.g. at {where})")
 
-check(bpy.ops.sweptvol.open_depth_images() == {"FINISHED"}, "open_depth_images failed")
-imgs = [i for i in bpy.data.images if "depth-" in i.name]
-check(len(imgs) == 6, f"expected 6 depth images, got {[i.name for i in imgs]}")
-for img in imgs:
-    px = np.empty(img.size[0] * img.size[1] * img.channels, dtype=np.float32)
-    img.pixels.foreach_get(px)
-    px = px.reshape(-1, img.channels)[:, 0]
-    check(img.size[0] > 0 and np.isfinite(px).all() and px.max() > 0.05,
-          f"{img.name}: not readable in Blender (size {tuple(img.size)}, max {px.max()})")
-log("depth images readable:", ", ".join(f"{i.name} {tuple(i.size)}" for i in imgs))
-check(bpy.ops.sweptvol.import_result(job=job["dir"]) == {"FINISHED"}, "import_result failed")
-check(len(coll.objects) == 1, "re-importing should replace the earlier result")
 
-# ---------------------------------------------------------------------------------------------
-# 4b. A job the daemon refuses: its message comes back as a Blender error report
+def main(state):
+    # ---------------------------------------------------------------------------------------------
+    # Install and configure the add-on from the zip, in the fresh profile
 
-settings.accuracy, settings.tolerance = "TOLERANCE", 1e-6
-try:
-    bpy.ops.sweptvol.compute(wait=True, timeout=120)
-    raise AssertionError("a tolerance of 1e-6 should fail in the daemon")
-except RuntimeError as e:
-    check("sweptvol failed" in str(e) and "larger tolerance" in str(e), f"not the daemon's message: {e}")
-    log("daemon error reported:", str(e).strip())
-check(operators.JOBS[-1]["state"] == "failed", f"state {operators.JOBS[-1]['state']}")
-settings.accuracy = "RESOLUTION"
+    state["module"] = module = install_addon()
+    addon = importlib.import_module(module)
+    exchange = importlib.import_module(module + ".exchange")
+    state["operators"] = operators = importlib.import_module(module + ".operators")
+    jobs = os.path.join(os.path.abspath(args.work), "jobs")
+    os.makedirs(jobs, exist_ok=True)
+    configure(module, jobs, auto_start=True)
+    log(f"add-on installed ({args.mode}) and enabled from {args.zip} as module '{module}' "
+        f"({addon.__file__}), Blender {bpy.app.version_string} ({bpy.app.binary_path or 'bpy module'})")
 
-# ---------------------------------------------------------------------------------------------
-# 5. Cancel: a big job submitted without waiting, cancelled, ends `cancelled`
+    # ---------------------------------------------------------------------------------------------
+    # The scene
 
-settings.resolution = 1024
-select([part, bar])
-check(bpy.ops.sweptvol.compute(wait=False) == {"FINISHED"}, "submitting without waiting failed")
-big = operators.JOBS[-1]
-deadline = time.monotonic() + 60
-while (exchange.read_status(big["dir"]) or {}).get("state") != "running" and time.monotonic() < deadline:
-    time.sleep(0.1)
-check(bpy.ops.sweptvol.cancel() == {"FINISHED"}, "cancel failed")
-check(operators.wait_for(big, 60), "the cancelled job did not finish within 60 s")
-check(big["state"] == "cancelled", f"the cancelled job ended {big['state']}")
-log("cancel: job ended", big["state"])
+    for o in list(bpy.data.objects):
+        bpy.data.objects.remove(o)
+    scene = bpy.context.scene
 
-# ---------------------------------------------------------------------------------------------
-# 6. Disabling the add-on stops the daemon it started
 
-bpy.ops.preferences.addon_disable(module="sweptvol_addon")
-daemon = exchange.read_json(os.path.join(jobs, ".sweptvol", "daemon.json")) or {}
-check(daemon.get("state") == "stopped", f"the daemon did not stop cleanly: {daemon}")
 
-# ---------------------------------------------------------------------------------------------
-# 7. With auto_start off and no daemon, the button still submits and says no daemon runs
 
-bpy.ops.preferences.addon_enable(module="sweptvol_addon")
-prefs = bpy.context.preferences.addons["sweptvol_addon"].preferences
-prefs.watch_folder, prefs.sweptvol_binary, prefs.auto_start = jobs, os.path.abspath(args.binary), False
-settings.resolution = args.resolution
-select([part])
-before = set(os.listdir(jobs))
-try:
-    bpy.ops.sweptvol.compute(wait=True, timeout=5)
-    raise AssertionError("waiting without a daemon should fail")
-except RuntimeError as e:
-    check("no sweptvol daemon seems to be running" in str(e), f"no 'no daemon' message: {e}")
-new = [n for n in set(os.listdir(jobs)) - before if not n.startswith(".")]
-check(len(new) == 1 and os.path.isfile(os.path.join(jobs, new[0], "trajectory.csv")),
-      f"the job was not submitted without a daemon: {new}")
-check(not exchange.daemon_alive(jobs)[0], "a daemon was started although auto_start is off")
-log("auto_start off: job submitted, no daemon started, the user is told")
-log("PASS")
+    # A parent empty that moves and turns; its child (a non-uniformly scaled box) turns on its own.
+    carrier = bpy.data.objects.new("Carrier", None)
+    scene.collection.objects.link(carrier)
+    carrier.scale = (1.2, 1.2, 1.2)
+    key(carrier, 1, loc=(0, 0, 0), rot=(0, 0, 0))
+    key(carrier, 9, loc=(1.0, 0.5, 0.3), rot=(0, 0, 60))
+
+    bpy.ops.mesh.primitive_cube_add(size=1.0, location=(0.4, 0, 0))
+    part = bpy.context.active_object
+    part.name = "Part"
+    part.scale = (1.5, 0.5, 0.8)
+    scene.frame_set(5)  # parent while the carrier is posed: a non-identity parent inverse
+    part.parent = carrier
+    part.matrix_parent_inverse = carrier.matrix_world.inverted()
+    key(part, 1, loc=(0.4, 0, 0), rot=(0, 0, 0))
+    key(part, 9, loc=(0.6, 0.1, 0.2), rot=(90, 0, 30))
+
+    # A second object with its own animation and a rigid modifier (bevel), scaled 0.7.
+    bpy.ops.mesh.primitive_cylinder_add(vertices=12, radius=0.3, depth=1.0, location=(-1.5, 0, 0))
+    bar = bpy.context.active_object
+    bar.name = "Bar, the second"  # a comma: the CSV must quote the node name
+    bar.scale = (0.7, 0.7, 0.7)
+    bev = bar.modifiers.new("Bevel", "BEVEL")
+    bev.width = 0.05
+    key(bar, 1, loc=(-1.5, 0, 0), rot=(0, 0, 0))
+    key(bar, 9, loc=(-1.0, 0.8, 0.5), rot=(45, 30, 0))
+    clamp = bar.constraints.new("LIMIT_LOCATION")  # constraints count: x stops at -1.2
+    clamp.use_max_x, clamp.max_x = True, -1.2
+
+    # A deforming object (animated shape key): must be refused by name and cause.
+    bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=1, radius=0.3, location=(0, -2, 0))
+    blob = bpy.context.active_object
+    blob.name = "Blob"
+    blob.shape_key_add(name="Basis")
+    sk = blob.shape_key_add(name="Squash")
+    for v in sk.data:
+        v.co.z *= 0.3
+    sk.value = 0.0
+    sk.keyframe_insert("value", frame=1)
+    sk.value = 1.0
+    sk.keyframe_insert("value", frame=9)
+
+    scene.frame_start, scene.frame_end = 1, 9
+    scene.frame_set(1)
+    settings = scene.sweptvol
+    settings.use_scene_range = False
+    settings.frame_start, settings.frame_end, settings.frame_step = FRAMES
+    settings.accuracy = "RESOLUTION"
+    settings.resolution = args.resolution
+
+
+
+
+    # ---------------------------------------------------------------------------------------------
+    # 1. The deforming object is refused, naming it and the cause, and nothing is submitted
+
+    select([part, blob])
+    try:
+        bpy.ops.sweptvol.compute(wait=True, timeout=60)
+        raise AssertionError("the deforming object was not refused")
+    except RuntimeError as e:
+        msg = str(e)
+        log("refused as expected:", msg.strip())
+        check("'Blob'" in msg and "shape keys" in msg, f"the refusal should name Blob and shape keys: {msg}")
+    check(not [n for n in os.listdir(jobs) if not n.startswith(".")], f"a refused job left files: {os.listdir(jobs)}")
+
+    # ---------------------------------------------------------------------------------------------
+    # 2. Compute: export -> job folder -> daemon (started by the add-on) -> import
+
+    select([part, bar])
+    t0 = time.monotonic()
+    result = bpy.ops.sweptvol.compute(wait=True, timeout=400)
+    check(result == {"FINISHED"}, f"compute returned {result}")
+    log(f"computed and imported in {time.monotonic() - t0:.1f} s")
+    job = operators.JOBS[-1]
+    check(job["state"] == "done", f"job state {job['state']}")
+    check(exchange.daemon_alive(jobs)[0], "the add-on did not start a daemon (no heartbeat)")
+    csv_text = open(os.path.join(job["dir"], "trajectory.csv")).read()
+    check('"Bar, the second"' in csv_text, "the node name with a comma is not quoted in the CSV")
+    job_json = json.load(open(os.path.join(job["dir"], "job.json")))
+    check(job_json.get("resolution") == args.resolution and job_json.get("backend") == "cpu", f"job.json {job_json}")
+
+    coll = bpy.data.collections.get("Swept Volumes")
+    check(coll is not None and coll.name in scene.collection.children, "no 'Swept Volumes' collection in the scene")
+    check(len(coll.objects) == 1, f"expected one imported object, got {[o.name for o in coll.objects]}")
+    swept = coll.objects[0]
+    check("Part" in swept.name, f"the imported object is not named after the source: {swept.name}")
+    bound = float(swept["sweptvol_hausdorff_bound"])
+    check(bound > 0 and swept.get("sweptvol_triangles", 0) > 0 and swept.get("sweptvol_poses", 0) > 0,
+          f"custom properties missing: {dict(swept.items())}")
+    mat = swept.data.materials[0]
+    blended = (mat.surface_render_method == "BLENDED" if hasattr(mat, "surface_render_method")
+               else mat.blend_method == "BLEND")
+    check(blended and mat.diffuse_color[3] < 1.0, "the material is not semi-transparent")
+    log(f"imported '{swept.name}': {len(swept.data.polygons)} faces, bound {bound:.4g}, "
+        f"poses {swept['sweptvol_poses']}")
+
+    # ---------------------------------------------------------------------------------------------
+    # 3. Geometry checks in Blender world coordinates
+
+
+    non_manifold_check(swept)
+    sv, swept_tris = world_mesh(swept)
+    check(len(swept_tris) > 0, "the imported mesh is empty")
+    check(abs(winding_numbers(np.array([[100.0, 100.0, 100.0]]), swept_tris)[0]) < 1e-6,
+          "the imported mesh is not closed (winding number far away is not 0)")
+
+    start, end, step = FRAMES
+    frames = [start + k * step for k in range(int(round((end - start) / step)) + 1)]
+    posed_points, posed_tris = [], []
+    for f in frames:
+        scene.frame_set(int(math.floor(f)), subframe=f - math.floor(f))
+        for obj in (part, bar):
+            verts, tris = world_mesh(obj)
+            posed_points += [verts, tris.mean(axis=1)]
+            posed_tris.append(tris)
+    scene.frame_set(1)
+    points = np.concatenate(posed_points)
+    all_tris = np.concatenate(posed_tris)
+    wn = winding_numbers(points, swept_tris)
+    outside = np.flatnonzero(wn < 0.5)
+    log(f"inside check: {len(points)} posed points over {len(frames)} frames, winding numbers "
+        f"{wn.min():.4f}..{wn.max():.4f}")
+    check(len(outside) == 0, f"{len(outside)} posed points are outside the swept volume, e.g. "
+          f"{points[outside[:3]].tolist()} (winding {wn[outside[:3]].tolist()})")
+    dist = point_triangle_distance(sv, all_tris)
+    log(f"bound check: {len(sv)} mesh vertices, farthest {dist.max():.5g} from the posed objects, "
+        f"bound {bound:.5g}")
+    check(dist.max() <= bound + 1e-6, f"an imported vertex is {dist.max()} from the posed objects, "
+          f"beyond the reported bound {bound} (at {sv[dist.argmax()].tolist()})")
+
+    # ---------------------------------------------------------------------------------------------
+    # 4. Depth images open readable; import_result works on its own
+
+    check(bpy.ops.sweptvol.open_depth_images() == {"FINISHED"}, "open_depth_images failed")
+    imgs = [i for i in bpy.data.images if "depth-" in i.name]
+    check(len(imgs) == 6, f"expected 6 depth images, got {[i.name for i in imgs]}")
+    for img in imgs:
+        px = np.empty(img.size[0] * img.size[1] * img.channels, dtype=np.float32)
+        img.pixels.foreach_get(px)
+        px = px.reshape(-1, img.channels)[:, 0]
+        check(img.size[0] > 0 and np.isfinite(px).all() and px.max() > 0.05,
+              f"{img.name}: not readable in Blender (size {tuple(img.size)}, max {px.max()})")
+    log("depth images readable:", ", ".join(f"{i.name} {tuple(i.size)}" for i in imgs))
+    check(bpy.ops.sweptvol.import_result(job=job["dir"]) == {"FINISHED"}, "import_result failed")
+    check(len(coll.objects) == 1, "re-importing should replace the earlier result")
+
+    # ---------------------------------------------------------------------------------------------
+    # 4a. An import that fails shows its own error, never the daemon's "done" message
+
+    broken = os.path.join(args.work, "broken-job")
+    shutil.copytree(job["dir"], broken)
+    with open(os.path.join(broken, "swept.glb"), "r+b") as f:
+        f.truncate(40)
+    done_message = (exchange.read_status(broken) or {}).get("message", "")
+    try:
+        bpy.ops.sweptvol.import_result(job=broken)
+        raise AssertionError("importing a truncated swept.glb should fail")
+    except RuntimeError as e:
+        check("importing the swept volume failed" in str(e) and (not done_message or done_message not in str(e)),
+              f"not the import's own error: {e}")
+        log("import failure reported:", str(e).strip())
+    fake = dict(job, dir=broken, state="running", line="running", error="")
+    check(operators.update_job(fake) and fake["state"] == "failed"
+          and fake["line"].startswith("importing the swept volume failed"),
+          f"the panel's line for a failed import is not its error: {fake['line']!r}")
+
+    # ---------------------------------------------------------------------------------------------
+    # 4b. A job the daemon refuses: its message comes back as a Blender error report
+
+    select([part, bar])
+    settings.accuracy, settings.tolerance = "TOLERANCE", 1e-6
+    try:
+        bpy.ops.sweptvol.compute(wait=True, timeout=120)
+        raise AssertionError("a tolerance of 1e-6 should fail in the daemon")
+    except RuntimeError as e:
+        check("sweptvol failed" in str(e) and "larger tolerance" in str(e), f"not the daemon's message: {e}")
+        log("daemon error reported:", str(e).strip())
+    check(operators.JOBS[-1]["state"] == "failed", f"state {operators.JOBS[-1]['state']}")
+    settings.accuracy = "RESOLUTION"
+
+    # ---------------------------------------------------------------------------------------------
+    # 5. Cancel: a big job submitted without waiting, cancelled, ends `cancelled`
+
+    settings.resolution = 1024
+    select([part, bar])
+    check(bpy.ops.sweptvol.compute(wait=False) == {"FINISHED"}, "submitting without waiting failed")
+    big = operators.JOBS[-1]
+    deadline = time.monotonic() + 60
+    while (exchange.read_status(big["dir"]) or {}).get("state") != "running" and time.monotonic() < deadline:
+        time.sleep(0.1)
+    check(bpy.ops.sweptvol.cancel() == {"FINISHED"}, "cancel failed")
+    check(operators.wait_for(big, 60), "the cancelled job did not finish within 60 s")
+    check(big["state"] == "cancelled", f"the cancelled job ended {big['state']}")
+    log("cancel: job ended", big["state"])
+
+    # ---------------------------------------------------------------------------------------------
+    # 6. Disabling the add-on stops the daemon it started
+
+    bpy.ops.preferences.addon_disable(module=module)
+    daemon = exchange.read_json(os.path.join(jobs, ".sweptvol", "daemon.json")) or {}
+    check(daemon.get("state") == "stopped", f"the daemon did not stop cleanly: {daemon}")
+
+    # ---------------------------------------------------------------------------------------------
+    # 7. With auto_start off and no daemon, the button still submits and says no daemon runs
+
+    bpy.ops.preferences.addon_enable(module=module)
+    # Every RNA reference taken before the re-enable is dead (a crash on 5.0, a silent no-op
+    # elsewhere): fetch the preferences, the scene, its settings and the objects anew.
+    configure(module, jobs, auto_start=False)
+    scene = bpy.context.scene
+    settings = scene.sweptvol
+    settings.resolution = args.resolution
+    check(settings.resolution == args.resolution, "the re-fetched settings did not take the value")
+    part = bpy.data.objects["Part"]
+    select([part])
+    before = set(os.listdir(jobs))
+    try:
+        bpy.ops.sweptvol.compute(wait=True, timeout=5)
+        raise AssertionError("waiting without a daemon should fail")
+    except RuntimeError as e:
+        check("no sweptvol daemon seems to be running" in str(e), f"no 'no daemon' message: {e}")
+    new = [n for n in set(os.listdir(jobs)) - before if not n.startswith(".")]
+    check(len(new) == 1 and os.path.isfile(os.path.join(jobs, new[0], "trajectory.csv")),
+          f"the job was not submitted without a daemon: {new}")
+    check(not exchange.daemon_alive(jobs)[0], "a daemon was started although auto_start is off")
+    log("auto_start off: job submitted, no daemon started, the user is told")
+    bpy.ops.preferences.addon_disable(module=module)
+    check(not hasattr(bpy.types.Scene, "sweptvol"), "disabling the add-on left Scene.sweptvol")
+
+
+
+def run():
+    state = {}
+    code, verdict = 1, "FAIL"
+    t0 = time.monotonic()
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            main(state)
+        ours = [w for w in caught if "sweptvol_addon" in str(w.filename)]
+        for w in ours:
+            log(f"warning from the add-on: {w.filename}:{w.lineno}: {w.category.__name__}: {w.message}")
+        if ours:
+            DEFERRED.append(f"{len(ours)} warning(s) from the add-on's code (see above)")
+        check(not DEFERRED, "; ".join(DEFERRED))
+        code, verdict = 0, "PASS"
+    except BaseException as e:  # noqa: BLE001 (the verdict must be printed whatever happened)
+        traceback.print_exc()
+        verdict = f"FAIL: {type(e).__name__}: {e}"
+    finally:
+        try:  # never leave a daemon behind: os._exit skips the add-on's atexit hook
+            if state.get("operators") is not None:
+                state["operators"].stop_daemon()
+        except Exception:  # noqa: BLE001
+            traceback.print_exc()
+        log(f"{verdict} (Blender {bpy.app.version_string}, {args.mode} install, "
+            f"{time.monotonic() - t0:.1f} s)")
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+
+
+run()
