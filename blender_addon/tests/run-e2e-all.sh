@@ -31,7 +31,11 @@ blender_version=$("${BLENDER:-blender}" --version 2>/dev/null | head -1)
 run "$blender_version (blender -b), legacy install" E2E_MODE=legacy || fail=1
 for i in "${!series[@]}"; do
     py="${pythons[$i]}"
-    version=$("$py" -c 'import bpy, os, sys; sys.stdout.write(bpy.app.version_string); sys.stdout.flush(); os._exit(0)')
+    version=$(timeout -k 5 120 "$py" -c 'import bpy, os, sys; sys.stdout.write(bpy.app.version_string); sys.stdout.flush(); os._exit(0)')
+    case "$version" in
+        "${series[$i]}".*) ;;
+        *) echo "the bpy-${series[$i]} venv holds Blender $version" >&2; results+=("bpy-${series[$i]}: holds $version"); fail=1; continue ;;
+    esac
     validator=$(find "$(dirname "$(dirname "$py")")" -path '*/addons_core/bl_pkg/cli/blender_ext.py' | head -1)
     echo "--- extension validate with Blender $version's validator"
     if [ -z "$validator" ]; then

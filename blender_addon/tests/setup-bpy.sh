@@ -10,7 +10,9 @@ py="${SWEPTVOL_BPY_PYTHON:-python3}"  # the wheels are built for CPython 3.11
 mkdir -p "$cache"
 for series in "$@"; do
     venv="$cache/bpy-$series"
-    if "$venv/bin/python" -c 'import bpy' >/dev/null 2>&1; then
+    # os._exit: the bpy module may crash or hang at interpreter exit (see blender_e2e.py)
+    probe=(timeout -k 5 120 "$venv/bin/python" -c 'import bpy, os; os._exit(0)')
+    if "${probe[@]}" >/dev/null 2>&1; then
         echo "$venv/bin/python"
         continue
     fi
@@ -18,7 +20,7 @@ for series in "$@"; do
     rm -rf "$venv"
     "$py" -m venv "$venv"
     "$venv/bin/pip" install -q --disable-pip-version-check "bpy==$series.*" >&2
-    if ! "$venv/bin/python" -c 'import bpy' >&2; then
+    if ! "${probe[@]}" >&2; then
         echo "setup-bpy: bpy $series installed but cannot be imported (missing X11/GL libraries?)" >&2
         exit 1
     fi
