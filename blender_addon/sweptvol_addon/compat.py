@@ -86,3 +86,15 @@ def settable(has_attr, settings=MATERIAL_SETTINGS):
                 out.append((key, value))
                 break
     return out
+
+
+def one_line(message):
+    """An error message as one line for a report or the panel. Errors raised by bpy.ops carry
+    'Error: ' prefixes and newlines, and an operator's own Python failure carries its whole
+    traceback: of that, only the last line (the exception) is kept. '' if nothing is left."""
+    lines = [line.strip() for line in str(message).splitlines()]
+    lines = [line[len("Error:"):].strip() if line.startswith("Error:") else line for line in lines]
+    lines = [line for line in lines if line]
+    if any("Traceback (most recent call last)" in line for line in lines):
+        lines = lines[-1:]
+    return " ".join(lines)

@@ -162,9 +162,8 @@ def sample(context, objects, frames):
 
 
 def _one_line(e):
-    """An exception as one line for a report: Blender's own errors carry 'Error: ' and newlines."""
-    text = " ".join(str(e).replace("Error: ", "").split())
-    return text or type(e).__name__
+    """An exception as one line for a report (see compat.one_line)."""
+    return compat.one_line(str(e)) or type(e).__name__
 
 
 def gltf_exporter_properties():

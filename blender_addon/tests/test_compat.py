@@ -92,3 +92,13 @@ def test_material_settings_per_version():
     assert dict(compat.settable(MAT_4_5.__contains__)) == {
         "surface_render_method": "BLENDED", "use_transparency_overlap": False}
     assert compat.settable(lambda k: False) == []
+
+
+def test_one_line():
+    assert compat.one_line("Error: cannot write x\n") == "cannot write x"
+    assert compat.one_line("Error: Python: Traceback (most recent call last):\n  File \"op.py\", "
+                           "line 3, in execute\n    f()\nAttributeError: no shadow_method\n"
+                           ) == "AttributeError: no shadow_method"
+    assert compat.one_line("a JSONDecodeError: Error: b") == "a JSONDecodeError: Error: b"
+    assert compat.one_line("two\nlines") == "two lines"
+    assert compat.one_line("") == "" and compat.one_line("Error: \n") == ""
