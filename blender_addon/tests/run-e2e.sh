@@ -39,8 +39,9 @@ else
           --python blender_addon/tests/blender_e2e.py -- "${script_args[@]}")
 fi
 rc=0
-timeout -k 10 "$limit" "${host[@]}" > >(tee "$work/log") 2>&1 || rc=$?
-sleep 0.2  # let tee finish
+# To a file, shown afterwards: a pipe into tee could be held open by a stray child process.
+timeout -k 10 "$limit" "${host[@]}" > "$work/log" 2>&1 || rc=$?
+cat "$work/log"
 if [ "$rc" = 124 ] || [ "$rc" = 137 ]; then
     echo "e2e ($mode, ${BPY_PYTHON:-${BLENDER:-blender}}): killed after $limit s" >&2; exit 1
 fi
