@@ -5,7 +5,8 @@
 //!
 //! The result is watertight, without T-junctions (all faces are unit squares on one lattice) and
 //! consistently oriented; it is "mostly manifold": where voxels touch only along an edge or at a
-//! corner, an edge has four faces or a vertex two fans.
+//! corner, an edge has four faces or a vertex two fans. The pipeline extracts the set
+//! `manifold::Joined` makes of the classifier's voxels, which has no such places.
 
 use glam::DVec3;
 
@@ -128,26 +129,10 @@ pub fn extract(set: &dyn VoxelSet) -> Mesh {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::voxel::DenseSet;
 
-    /// A voxel set from a list of voxels.
-    struct Voxels([usize; 3], Vec<[usize; 3]>);
-
-    impl VoxelSet for Voxels {
-        fn dims(&self) -> [usize; 3] {
-            self.0
-        }
-        fn slab(&self, k: isize, slab: &mut [bool]) {
-            slab.fill(false);
-            for v in &self.1 {
-                if v[2] as isize == k {
-                    slab[v[1] * self.0[0] + v[0]] = true;
-                }
-            }
-        }
-    }
-
-    fn check(set: Voxels, triangles: usize, vertices: usize) {
-        let voxels = set.1.len() as f64;
+    fn check(set: DenseSet, triangles: usize, vertices: usize) {
+        let voxels = set.len() as f64;
         let m = extract(&set);
         assert_eq!(
             (m.triangles.len(), m.positions.len()),
@@ -163,32 +148,44 @@ mod tests {
 
     #[test]
     fn one_voxel_is_a_cube() {
-        check(Voxels([3, 3, 3], vec![[1, 1, 1]]), 12, 8);
+        check(DenseSet::from_list([3, 3, 3], &[[1, 1, 1]]), 12, 8);
     }
 
     #[test]
     fn voxels_on_the_grid_border_are_closed_too() {
-        check(Voxels([1, 1, 1], vec![[0, 0, 0]]), 12, 8);
-        check(Voxels([2, 1, 1], vec![[0, 0, 0], [1, 0, 0]]), 20, 12);
+        check(DenseSet::from_list([1, 1, 1], &[[0, 0, 0]]), 12, 8);
+        check(
+            DenseSet::from_list([2, 1, 1], &[[0, 0, 0], [1, 0, 0]]),
+            20,
+            12,
+        );
     }
 
     #[test]
     fn shared_faces_disappear() {
         // A 2x2x2 block: a cube of 24 unit squares, 26 distinct corners.
-        let block = (0..8)
+        let block: Vec<[usize; 3]> = (0..8)
             .map(|b| [1 + (b & 1), 1 + (b >> 1 & 1), 1 + (b >> 2)])
             .collect();
-        check(Voxels([4, 4, 4], block), 48, 26);
+        check(DenseSet::from_list([4, 4, 4], &block), 48, 26);
     }
 
     #[test]
     fn voxels_touching_along_an_edge_share_it_with_four_faces() {
         // Non-manifold edge: still every directed edge is paired, vertices are welded.
-        check(Voxels([3, 3, 2], vec![[0, 0, 0], [1, 1, 0]]), 24, 14);
+        check(
+            DenseSet::from_list([3, 3, 2], &[[0, 0, 0], [1, 1, 0]]),
+            24,
+            14,
+        );
     }
 
     #[test]
     fn voxels_touching_at_a_corner_share_one_vertex() {
-        check(Voxels([2, 2, 2], vec![[0, 0, 0], [1, 1, 1]]), 24, 15);
+        check(
+            DenseSet::from_list([2, 2, 2], &[[0, 0, 0], [1, 1, 1]]),
+            24,
+            15,
+        );
     }
 }

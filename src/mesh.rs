@@ -3,6 +3,7 @@
 use std::collections::HashMap;
 
 use glam::DVec3;
+use serde::Serialize;
 
 /// An indexed triangle mesh. Positions are grid units (world = origin + p·h).
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -64,5 +65,94 @@ impl Mesh {
             .zip(&largest)
             .map(|(s, l)| s.try_normalize().unwrap_or(l.1))
             .collect()
+    }
+
+    /// What keeps the mesh from being a closed, oriented 2-manifold: all zero exactly when every
+    /// edge has two triangles that run along it in opposite directions, every vertex's
+    /// triangles form one closed fan, and no two vertices share a position.
+    pub fn manifold_defects(&self) -> ManifoldDefects {
+        let mut edges: HashMap<(u32, u32), (u32, u32)> = HashMap::new();
+        for t in &self.triangles {
+            for k in 0..3 {
+                let (a, b) = (t[k], t[(k + 1) % 3]);
+                let e = edges.entry((a.min(b), a.max(b))).or_default();
+                if a < b {
+                    e.0 += 1;
+                } else {
+                    e.1 += 1;
+                }
+            }
+        }
+        let bad_edges = edges.values().filter(|&&uses| uses != (1, 1)).count();
+
+        // Each vertex's corners as (previous, next) vertex; one closed fan when walking from a
+        // corner's `next` to the corner whose `previous` it is visits every corner once.
+        let mut start = vec![0usize; self.positions.len() + 1];
+        for t in &self.triangles {
+            for &v in t {
+                start[v as usize + 1] += 1;
+            }
+        }
+        for v in 0..self.positions.len() {
+            start[v + 1] += start[v];
+        }
+        let mut fill = start.clone();
+        let mut corners = vec![(0u32, 0u32); 3 * self.triangles.len()];
+        for t in &self.triangles {
+            for k in 0..3 {
+                let v = t[k] as usize;
+                corners[fill[v]] = (t[(k + 2) % 3], t[(k + 1) % 3]);
+                fill[v] += 1;
+            }
+        }
+        let one_fan = |fan: &[(u32, u32)]| {
+            let mut at = 0;
+            for step in 1..=fan.len() {
+                let next = fan[at].1;
+                let Some(n) = fan.iter().position(|c| c.0 == next) else {
+                    return false;
+                };
+                at = n;
+                if at == 0 {
+                    return step == fan.len();
+                }
+            }
+            false
+        };
+        let bad_vertices = (0..self.positions.len())
+            .filter(|&v| {
+                let fan = &corners[start[v]..start[v + 1]];
+                !fan.is_empty() && !one_fan(fan)
+            })
+            .count();
+
+        let mut seen = std::collections::HashSet::new();
+        let duplicates = self
+            .positions
+            .iter()
+            .filter(|p| !seen.insert(p.to_array().map(f64::to_bits)))
+            .count();
+        ManifoldDefects {
+            edges: bad_edges as u64,
+            vertices: bad_vertices as u64,
+            duplicate_positions: duplicates as u64,
+        }
+    }
+}
+
+/// Counts of what keeps a mesh from being a closed, oriented 2-manifold ([`Mesh::manifold_defects`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct ManifoldDefects {
+    /// Edges not used exactly once in each direction (open, four-face or misoriented edges).
+    pub edges: u64,
+    /// Vertices whose triangles are not one closed fan (pinched vertices).
+    pub vertices: u64,
+    /// Vertices at the position of an earlier vertex.
+    pub duplicate_positions: u64,
+}
+
+impl ManifoldDefects {
+    pub fn is_manifold(&self) -> bool {
+        *self == ManifoldDefects::default()
     }
 }

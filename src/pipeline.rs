@@ -14,6 +14,8 @@ use crate::grid::{Accuracy, Grid, Overrides};
 use crate::io::exr_depth::{self, ExtraMeta, Side};
 use crate::io::{atomic, gltf_in, gltf_out, trajectory};
 use crate::job::{self, PartRange, SweepInput};
+use crate::manifold::Joined;
+use crate::mesh::ManifoldDefects;
 use crate::simplify::{simplify_until, SimplifyOptions, SimplifyStats};
 use crate::sweep::{cpu, gpu::Gpu, Cancelled, Observer};
 use crate::voxel::Classifier;
@@ -135,6 +137,16 @@ pub struct MeshReport {
     pub triangles_start: u64,
     pub triangles_final: u64,
     pub vertices: u64,
+    /// Every edge in exactly two triangles, every vertex's triangles one fan, no two vertices
+    /// at one position (checked on the output; `manifold_defects` counts what is not).
+    pub manifold: bool,
+    pub manifold_defects: ManifoldDefects,
+    /// Outside voxels made inside so that voxels touching only along an edge or at a corner
+    /// are joined (the start mesh is then a 2-manifold).
+    pub joined_voxels: u64,
+    /// How far a point of a joined voxel can be from the centre of an original inside voxel,
+    /// world units (0 when none was joined); enters `hausdorff_bound` when it exceeds ε + √3h/2.
+    pub joined_voxel_reach: f64,
     /// Whether the output was simplified (edge collapses inside the tolerance volume).
     pub simplified: bool,
     /// Collapses done and candidates refused, by reason.
@@ -142,7 +154,8 @@ pub struct MeshReport {
     /// Enclosed volume, world units³.
     pub volume: f64,
     /// Guaranteed one-sided Hausdorff distance from the mesh to the swept volume wherever its
-    /// concavities are visible along some axis: ε + √3h/2 + δ + 2ρ + output rounding.
+    /// concavities are visible along some axis: max(ε + √3h/2, joined voxel reach) + δ + 2ρ +
+    /// output rounding.
     pub hausdorff_bound: f64,
     /// Where `hausdorff_bound` holds, in words (it is not a global bound).
     pub hausdorff_bound_scope: &'static str,
@@ -337,7 +350,13 @@ pub fn execute(
     checkpoint(observer, "classify")?;
     tracing::info!("classifying voxels and extracting the boundary mesh");
     let classifier = Classifier::new(&images);
-    let start = extract::extract(&classifier);
+    // Where voxels touch only along an edge or at a corner, outside voxels join them so the
+    // start mesh is a 2-manifold; the simplifier keeps it one. The tolerance band stays that of
+    // the classifier's voxels (docs/design.md, "A 2-manifold start mesh").
+    let joined = Joined::new(&classifier);
+    let start = extract::extract(&joined);
+    let (joined_voxels, join_reach) = (joined.added().len() as u64, joined.reach());
+    drop(joined);
     let t_extract = Instant::now();
     checkpoint(observer, "simplify")?;
     tracing::info!(
@@ -374,6 +393,14 @@ pub fn execute(
     };
     let (mesh, simplify_stats) =
         simplify_until(start, &classifier, band, &|| observer.cancelled()).ok_or(Cancelled)?;
+    let manifold = mesh.manifold_defects();
+    let mut warnings = job.warnings.clone();
+    if !manifold.is_manifold() {
+        // An invariant of the simplifier on a manifold start mesh: report it, never hide it.
+        let w = format!("internal error: the output mesh is not a 2-manifold ({manifold:?}); it is still conservative; please report this input");
+        tracing::warn!("{w}");
+        warnings.push(w);
+    }
     let (_, output_rounding) = gltf_out::world_positions(&mesh, &input.grid);
     // The mesh keeps a clearance of δ - √3h/2 - ε (about 0.71h at the defaults) from the swept
     // volume; f32 output must not spend a noticeable part of it.
@@ -412,8 +439,14 @@ pub fn execute(
         simplified: true,
         simplification: simplify_stats,
         volume: mesh.volume() * h * h * h,
-        hausdorff_bound: input.params.epsilon
-            + eps_voxel
+        manifold: manifold.is_manifold(),
+        manifold_defects: manifold,
+        joined_voxels,
+        joined_voxel_reach: join_reach * h,
+        // A mesh point is within ε of the classifier's voxel boundary (a new triangle), or on a
+        // face of an inside voxel: √3h/2 from an original voxel's centre, or `join_reach` from
+        // one for a joined voxel. Each such centre is within δ + 2ρ of the swept volume.
+        hausdorff_bound: (input.params.epsilon + eps_voxel).max(join_reach * h)
             + input.params.delta
             + 2.0 * input.rounding * h
             + output_rounding,
@@ -495,7 +528,7 @@ pub fn execute(
             files,
         },
         mesh: mesh_report,
-        warnings: job.warnings.clone(),
+        warnings,
     };
     let json = serde_json::to_vec_pretty(&report)?;
     staged.write(&job.outputs[REPORT], &json)?;

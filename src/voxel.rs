@@ -66,12 +66,22 @@ impl RangeImage {
     }
 }
 
-/// A set of voxels on an nx × ny × nz grid, read one z-slab at a time.
+/// A set of voxels on an nx × ny × nz grid, read voxel by voxel or one z-slab at a time.
 pub trait VoxelSet {
     fn dims(&self) -> [usize; 3];
+    /// Whether voxel (i, j, k) is in the set; false outside the grid.
+    fn inside(&self, i: isize, j: isize, k: isize) -> bool;
     /// Fill `slab` (nx·ny, index j·nx + i) with the voxels of z-slab `k`; all false when `k` is
     /// outside the grid.
-    fn slab(&self, k: isize, slab: &mut [bool]);
+    fn slab(&self, k: isize, slab: &mut [bool]) {
+        let [nx, ny, _] = self.dims();
+        debug_assert_eq!(slab.len(), nx * ny);
+        for j in 0..ny {
+            for i in 0..nx {
+                slab[j * nx + i] = self.inside(i as isize, j as isize, k);
+            }
+        }
+    }
 }
 
 /// The inside/outside classification of a whole grid, queried slab by slab.
@@ -151,14 +161,76 @@ impl VoxelSet for Classifier {
         self.dims
     }
 
-    fn slab(&self, k: isize, slab: &mut [bool]) {
-        let [nx, ny, _] = self.dims;
-        debug_assert_eq!(slab.len(), nx * ny);
-        for j in 0..ny {
-            for i in 0..nx {
-                slab[j * nx + i] = self.inside(i as isize, j as isize, k);
-            }
+    fn inside(&self, i: isize, j: isize, k: isize) -> bool {
+        Classifier::inside(self, i, j, k)
+    }
+}
+
+/// A voxel set stored voxel by voxel: for tests of the mesh stages on arbitrary sets (pinches
+/// included), which condition ⋆ cannot express. Memory: one byte per voxel.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct DenseSet {
+    pub dims: [usize; 3],
+    /// Index (k·ny + j)·nx + i.
+    pub cells: Vec<bool>,
+}
+
+impl DenseSet {
+    /// The empty set on an nx × ny × nz grid.
+    pub fn new(dims: [usize; 3]) -> Self {
+        DenseSet {
+            dims,
+            cells: vec![false; dims[0] * dims[1] * dims[2]],
         }
+    }
+
+    /// The set of the listed voxels.
+    pub fn from_list(dims: [usize; 3], voxels: &[[usize; 3]]) -> Self {
+        let mut set = DenseSet::new(dims);
+        for &v in voxels {
+            set.insert(v);
+        }
+        set
+    }
+
+    /// A copy of any voxel set.
+    pub fn copy_of(set: &dyn VoxelSet) -> Self {
+        let dims = set.dims();
+        let mut out = DenseSet::new(dims);
+        let plane = dims[0] * dims[1];
+        for k in 0..dims[2] {
+            set.slab(k as isize, &mut out.cells[k * plane..(k + 1) * plane]);
+        }
+        out
+    }
+
+    pub fn insert(&mut self, [i, j, k]: [usize; 3]) {
+        let [nx, ny, _] = self.dims;
+        self.cells[(k * ny + j) * nx + i] = true;
+    }
+
+    /// How many voxels are in the set.
+    pub fn len(&self) -> usize {
+        self.cells.iter().filter(|&&c| c).count()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+impl VoxelSet for DenseSet {
+    fn dims(&self) -> [usize; 3] {
+        self.dims
+    }
+
+    fn inside(&self, i: isize, j: isize, k: isize) -> bool {
+        let [nx, ny, nz] = self.dims;
+        let within = |x: isize, n: usize| x >= 0 && (x as usize) < n;
+        within(i, nx)
+            && within(j, ny)
+            && within(k, nz)
+            && self.cells[(k as usize * ny + j as usize) * nx + i as usize]
     }
 }
 

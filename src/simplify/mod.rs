@@ -1185,4 +1185,66 @@ mod tests {
             }
         }
     }
+
+    /// The start mesh of joined voxels (a 2-manifold) simplifies to a 2-manifold, and every
+    /// output point is within the band of the classifier's voxel boundary or on an unchanged
+    /// face of the joined voxels, the two places the report's bounds cover.
+    #[test]
+    fn joined_voxel_sets_simplify_to_a_manifold() {
+        let mut joined_any = 0;
+        for seed in 0..3 {
+            let cls = crate::voxel::test_support::random([20, 20, 20], seed);
+            let joined = crate::manifold::Joined::new(&cls);
+            joined_any += joined.added().len();
+            let start = extract(&joined);
+            assert!(start.manifold_defects().is_manifold());
+            let (out, stats) = simplify(&start, &cls, defaults());
+            let defects = out.manifold_defects();
+            assert!(defects.is_manifold(), "seed {seed}: {defects:?} {stats:?}");
+            assert!(out.triangles.len() * 2 < start.triangles.len(), "{stats:?}");
+            // x is on the joined voxels' boundary when the voxels whose closures hold it are of
+            // both classes.
+            let on_joined_face = |x: DVec3| {
+                let range = |c: f64| {
+                    let f = c.floor() as isize;
+                    if c.fract() == 0.0 {
+                        f - 1..=f
+                    } else {
+                        f..=f
+                    }
+                };
+                let mut classes = [false; 2];
+                for k in range(x.z) {
+                    for j in range(x.y) {
+                        for i in range(x.x) {
+                            classes[crate::voxel::VoxelSet::inside(&joined, i, j, k) as usize] =
+                                true;
+                        }
+                    }
+                }
+                classes == [true; 2]
+            };
+            for t in &out.triangles {
+                let p = t.map(|v| out.positions[v as usize]);
+                for x in [p[0], (p[0] + p[1] + p[2]) / 3.0] {
+                    assert!(
+                        dist_to_boundary(&cls, x, defaults().eps).is_some() || on_joined_face(x),
+                        "seed {seed}: {x} neither in the band nor on a joined face"
+                    );
+                }
+            }
+            for k in 0..20 {
+                for j in 0..20 {
+                    for i in 0..20 {
+                        let c = DVec3::new(i as f64, j as f64, k as f64) + 0.5;
+                        if cls.inside(i, j, k) && dist_to_boundary(&cls, c, 1.5).is_none() {
+                            let w = winding_number(&out, c);
+                            assert!((w - 1.0).abs() < 1e-6, "seed {seed}: {c} has winding {w}");
+                        }
+                    }
+                }
+            }
+        }
+        assert!(joined_any > 0, "the random sets had no pinches to join");
+    }
 }
