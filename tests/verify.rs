@@ -569,3 +569,42 @@ fn bad_inputs_give_the_same_errors_as_run() {
     ]);
     assert_eq!(String::from_utf8_lossy(&o.stderr), run_err);
 }
+
+/// Two boxes that touch only along an edge, or only at a corner, enclose the swept box and
+/// bound a solid, but are not a 2-manifold: verify fails them (exit 3) and says why; each box
+/// alone passes that check.
+#[test]
+fn pinched_meshes_fail_as_not_manifold() {
+    let dir = tempfile::tempdir().unwrap();
+    let (g, csv) = analytic(dir.path());
+    let hull = cuboid([-0.05, -0.05, -0.05], [1.55, 0.45, 0.35]);
+    for (name, lo, hi, edges, vertices) in [
+        ("edge", [1.55, 0.45, -0.05], [2.0, 1.0, 0.35], 1, 2),
+        ("corner", [1.55, 0.45, 0.35], [2.0, 1.0, 1.0], 0, 1),
+    ] {
+        let other = cuboid(lo, hi);
+        let (mut v, mut t) = hull.clone();
+        let base = v.len() as u32;
+        v.extend(other.0);
+        t.extend(other.1.iter().map(|tri| tri.map(|i| i + base)));
+        let m = dir.path().join(format!("{name}.glb"));
+        write_glb(&m, &v, &t);
+        let (code, r) = verify_json(&g, &csv, &m, &["--spacing", "0.01"]);
+        assert_eq!(code, 3, "{name}: {}", failures(&r));
+        assert!(
+            failures(&r).contains("not a 2-manifold"),
+            "{}",
+            failures(&r)
+        );
+        assert_eq!(r["health"]["non_manifold_edges"], edges, "{name}");
+        assert_eq!(r["health"]["non_manifold_vertices"], vertices, "{name}");
+        assert_eq!(r["health"]["watertight_manifold"], false);
+        assert_eq!(r["health"]["closed"], true);
+    }
+    let m = dir.path().join("hull.glb");
+    write_glb(&m, &hull.0, &hull.1);
+    let (code, r) = verify_json(&g, &csv, &m, &["--spacing", "0.01"]);
+    assert_eq!(code, 0, "{}", failures(&r));
+    assert_eq!(r["health"]["watertight_manifold"], true);
+    assert_eq!(r["health"]["non_manifold_vertices"], 0);
+}

@@ -27,10 +27,14 @@ pub struct Health {
     pub non_manifold_edges: u64,
     /// Edges whose two triangles run along them in the same direction.
     pub misoriented_edges: u64,
+    /// Vertices (welded by position) whose triangles are not one closed fan: two cones meeting
+    /// at a point, or two vertices of the file at one place.
+    pub non_manifold_vertices: u64,
     /// Every edge is used as often in each direction: the surface bounds a solid and the
     /// winding number is an integer off it. What the containment proof needs.
     pub closed: bool,
-    /// Closed, no open, non-manifold or misoriented edges.
+    /// Closed and a 2-manifold: every edge in two triangles of opposite directions, every
+    /// vertex one fan.
     pub watertight_manifold: bool,
     /// Connected by shared vertices.
     pub components: u64,
@@ -108,6 +112,8 @@ pub fn check(tris: &[[DVec3; 3]], bvh: &Bvh) -> (Health, Vec<(DVec3, DVec3)>) {
             .unwrap()
     });
 
+    let non_manifold_vertices = count_pinched_vertices(&welded, points.len());
+
     // Components by shared vertices (union-find).
     let mut parent: Vec<u32> = (0..points.len() as u32).collect();
     fn find(parent: &mut [u32], mut i: u32) -> u32 {
@@ -171,11 +177,50 @@ pub fn check(tris: &[[DVec3; 3]], bvh: &Bvh) -> (Health, Vec<(DVec3, DVec3)>) {
         non_manifold_edges: non_manifold,
         misoriented_edges: misoriented,
         closed,
-        watertight_manifold: closed && open == 0 && non_manifold == 0 && misoriented == 0,
+        non_manifold_vertices,
+        watertight_manifold: closed
+            && open == 0
+            && non_manifold == 0
+            && misoriented == 0
+            && non_manifold_vertices == 0,
         components,
         self_intersecting_pairs,
         self_intersection_examples: pairs,
         signed_volume,
     };
     (health, boundary)
+}
+
+/// Vertices whose corners do not chain into one closed fan: at vertex v each triangle (v, a, b)
+/// (in its winding order) leads to the triangle whose corner at v starts at b; one fan when that
+/// walk from any corner visits all of v's corners and returns.
+fn count_pinched_vertices(welded: &[[u32; 3]], vertices: usize) -> u64 {
+    let mut corners: Vec<Vec<(u32, u32)>> = vec![Vec::new(); vertices];
+    for t in welded {
+        if t[0] == t[1] || t[1] == t[2] || t[2] == t[0] {
+            continue;
+        }
+        for k in 0..3 {
+            corners[t[k] as usize].push((t[(k + 1) % 3], t[(k + 2) % 3]));
+        }
+    }
+    corners
+        .iter()
+        .filter(|c| !c.is_empty())
+        .filter(|c| {
+            let mut at = 0usize;
+            let mut steps = 0usize;
+            loop {
+                let to = c[at].1;
+                match c.iter().position(|&(from, _)| from == to) {
+                    Some(n) => at = n,
+                    None => return true,
+                }
+                steps += 1;
+                if at == 0 || steps > c.len() {
+                    return !(at == 0 && steps == c.len());
+                }
+            }
+        })
+        .count() as u64
 }

@@ -224,6 +224,12 @@ pub fn verify(opts: &VerifyOptions, progress: &dyn Progress) -> anyhow::Result<R
             health.open_edges, health.misoriented_edges, health.non_manifold_edges
         ));
     }
+    if health.closed && !health.watertight_manifold {
+        failures.push(format!(
+            "mesh is not a 2-manifold: {} edges with more than two triangles, {} vertices whose triangles are not one fan (pinches, or two vertices at one place); downstream tools (slicers, CAD import, booleans) refuse such meshes",
+            health.non_manifold_edges, health.non_manifold_vertices
+        ));
+    }
     if containment.outside > 0 {
         let w = containment.worst_outside.as_ref();
         failures.push(format!(
@@ -380,12 +386,13 @@ impl Report {
             i.mesh_triangles
         );
         s += &format!(
-            "mesh health: closed {}, watertight and manifold {}; {} open, {} misoriented, {} non-manifold edges; {} components; {} self-intersecting triangle pairs; {} degenerate triangles; signed volume {:.6e}\n",
+            "mesh health: closed {}, watertight and manifold {}; {} open, {} misoriented, {} non-manifold edges; {} non-manifold vertices; {} components; {} self-intersecting triangle pairs; {} degenerate triangles; signed volume {:.6e}\n",
             yes(h.closed),
             yes(h.watertight_manifold),
             h.open_edges,
             h.misoriented_edges,
             h.non_manifold_edges,
+            h.non_manifold_vertices,
             h.components,
             h.self_intersecting_pairs,
             h.degenerate_triangles,
