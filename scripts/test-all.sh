@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Set up a fresh Debian machine for sweptvol's tests and run every one of them.
 # Installs (only what is missing): lavapipe, the Vulkan loader, Node and npm, a Python venv with
-# the independent EXR reader and pytest, the Khronos glTF validator, Blender (Debian's 3.4). Then:
+# the independent EXR reader, pytest, trimesh and manifold3d, the Khronos glTF validator, Blender (Debian's 3.4). Then:
 # format, lints, all tests (GPU path on lavapipe), the example, the Blender add-on's tests.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -29,11 +29,11 @@ command -v node >/dev/null 2>&1 || missing+=(nodejs)
 command -v npm >/dev/null 2>&1 || missing+=(npm)
 if ((${#missing[@]})); then apt_install "${missing[@]}"; else echo "all present"; fi
 
-say "Python venv for the independent EXR reader and the add-on's pytest"
+say "Python venv: the independent EXR reader, pytest, trimesh and manifold3d (downstream-tool check)"
 venv=target/test-venv
-if ! "$venv/bin/python" -c 'import OpenEXR, numpy, pytest' 2>/dev/null; then
+if ! "$venv/bin/python" -c 'import OpenEXR, numpy, pytest, trimesh, manifold3d' 2>/dev/null; then
     python3 -m venv "$venv"
-    "$venv/bin/pip" install -q --disable-pip-version-check OpenEXR numpy pytest
+    "$venv/bin/pip" install -q --disable-pip-version-check OpenEXR numpy pytest trimesh manifold3d
 fi
 
 say "Khronos glTF validator (npm)"
@@ -58,6 +58,9 @@ cargo run --release --locked -- run --generator examples/bunny.glb \
     --trajectory examples/bunny-vibration.csv --out target/example-results --resolution 128 --overwrite --quiet
 ls target/example-results
 node tools/gltf-validator/validate.mjs target/example-results/bunny-vibration.swept.glb
+
+say "the example's mesh is a solid to trimesh and manifold3d (no repair)"
+"$venv/bin/python" tests/manifold_check.py target/example-results/bunny-vibration.swept.glb
 
 say "the example's mesh, certified by verify (containment; the run's own bound where it applies)"
 bound=$("$venv/bin/python" -c 'import json, sys; print(json.load(open(sys.argv[1]))["mesh"]["hausdorff_bound"])' \
