@@ -163,6 +163,7 @@ fn main() -> anyhow::Result<()> {
             overwrite: true,
             target_triangles: 0,
             keep_start_mesh: false,
+            also: Vec::new(),
         };
         let job = pipeline::prepare(&opts)?;
         let report = pipeline::execute(&job, &Backend::acquire(BackendChoice::Cpu)?, &Silent)?;

@@ -141,6 +141,10 @@ struct RunArgs {
     /// Also write the unsimplified voxel boundary as NAME.start.glb.
     #[arg(long)]
     keep_start_mesh: bool,
+    /// Also write the swept mesh as NAME.swept.stl (binary, outward normals), .ply (binary) or
+    /// .obj: a comma-separated list.
+    #[arg(long, value_enum, value_delimiter = ',', value_name = "FORMATS")]
+    also: Vec<sweptvol::io::mesh_formats::MeshFormat>,
     /// Replace existing outputs.
     #[arg(long)]
     overwrite: bool,
@@ -186,6 +190,7 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
         overwrite: args.overwrite,
         target_triangles: args.target_triangles.unwrap_or(0),
         keep_start_mesh: args.keep_start_mesh,
+        also: args.also.clone(),
     };
     // Inputs first: a bad file is reported before any GPU start-up.
     let job = pipeline::prepare(&opts)?;

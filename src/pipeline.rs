@@ -12,6 +12,7 @@ use crate::depth::{DepthImages, AXIS_NAMES};
 use crate::extract;
 use crate::grid::{Accuracy, Grid, Overrides};
 use crate::io::exr_depth::{self, ExtraMeta, Side};
+use crate::io::mesh_formats::MeshFormat;
 use crate::io::{atomic, gltf_in, gltf_out, trajectory};
 use crate::job::{self, PartRange, SweepInput};
 use crate::manifold::Joined;
@@ -108,6 +109,8 @@ pub struct RunOptions {
     pub target_triangles: usize,
     /// Also write the unsimplified voxel boundary as `<stem>.start.glb`.
     pub keep_start_mesh: bool,
+    /// Also write the output mesh in these formats (`<stem>.swept.stl`, ...).
+    pub also: Vec<MeshFormat>,
 }
 
 /// The report written beside the depth images (`<name>.report.json`).
@@ -257,8 +260,15 @@ fn with_stem(stem: &str, suffix: &str) -> String {
 const REPORT: usize = 7;
 const START_MESH: usize = 8;
 
+/// The extra formats asked for, each once, in `MeshFormat::ALL` order.
+fn also_formats(opts: &RunOptions) -> impl Iterator<Item = MeshFormat> + '_ {
+    MeshFormat::ALL
+        .into_iter()
+        .filter(|f| opts.also.contains(f))
+}
+
 /// Every file `run` writes, in order: the mesh, six depth images (x, y, z; min, max), the report,
-/// and with `keep_start_mesh` the unsimplified mesh.
+/// with `keep_start_mesh` the unsimplified mesh, then the `also` formats.
 pub fn output_paths(opts: &RunOptions) -> anyhow::Result<Vec<PathBuf>> {
     let stem = output_stem(opts)?;
     let mut out = vec![opts.out_dir.join(with_stem(&stem, "swept.glb"))];
@@ -273,6 +283,9 @@ pub fn output_paths(opts: &RunOptions) -> anyhow::Result<Vec<PathBuf>> {
     out.push(opts.out_dir.join(with_stem(&stem, "report.json")));
     if opts.keep_start_mesh {
         out.push(opts.out_dir.join(with_stem(&stem, "start.glb")));
+    }
+    for f in also_formats(opts) {
+        out.push(opts.out_dir.join(with_stem(&stem, f.suffix())));
     }
     Ok(out)
 }
@@ -471,6 +484,11 @@ pub fn execute(
     staged.write(&job.outputs[0], &glb)?;
     if let Some(start_glb) = start_glb {
         staged.write(&job.outputs[START_MESH], &start_glb)?;
+    }
+    let first_also = job.outputs.len() - also_formats(opts).count();
+    for (f, path) in also_formats(opts).zip(&job.outputs[first_also..]) {
+        let name = format!("{stem} swept volume");
+        staged.write(path, &f.bytes(&mesh, &input.grid, name.trim_start()))?;
     }
     let t_write = Instant::now();
 

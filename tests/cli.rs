@@ -267,3 +267,63 @@ fn bad_settings_are_refused_before_writing() {
         assert!(!out.exists(), "{extra:?} created outputs");
     }
 }
+
+/// `--also stl,ply,obj` writes the same mesh in those formats beside the .glb, lists them in the
+/// report, and keeps the no-overwrite rule for them too; an unknown format is a usage error.
+#[test]
+fn also_writes_stl_ply_and_obj_of_the_same_mesh() {
+    let dir = tempfile::tempdir().unwrap();
+    let g = write_gltf(dir.path(), "part.gltf", &["part"], None);
+    let t = write(dir.path(), "part.csv", GOOD_CSV);
+    let out = dir.path().join("results");
+    let (gs, ts, os) = (
+        g.to_str().unwrap(),
+        t.to_str().unwrap(),
+        out.to_str().unwrap(),
+    );
+    let mut args = run_args(gs, ts, os);
+    args.extend(["--also", "obj,stl,ply,stl"]);
+    let o = sweptvol(&args);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let report: serde_json::Value =
+        serde_json::from_slice(&fs::read(out.join("part.report.json")).unwrap()).unwrap();
+    let triangles = report["mesh"]["triangles_final"].as_u64().unwrap();
+    let outputs: Vec<String> = report["outputs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| p.as_str().unwrap().to_string())
+        .collect();
+    for ext in ["stl", "ply", "obj"] {
+        let name = format!("part.swept.{ext}");
+        assert_eq!(
+            outputs.iter().filter(|p| p.ends_with(&name)).count(),
+            1,
+            "{outputs:?}"
+        );
+    }
+    let stl = fs::read(out.join("part.swept.stl")).unwrap();
+    let facets = u32::from_le_bytes(stl[80..84].try_into().unwrap()) as u64;
+    assert_eq!((facets, stl.len() as u64), (triangles, 84 + 50 * triangles));
+    let obj = fs::read_to_string(out.join("part.swept.obj")).unwrap();
+    assert_eq!(
+        obj.lines().filter(|l| l.starts_with("f ")).count() as u64,
+        triangles
+    );
+    let ply = fs::read(out.join("part.swept.ply")).unwrap();
+    assert!(String::from_utf8_lossy(&ply[..200]).contains(&format!("element face {triangles}\n")));
+
+    // An existing .stl blocks a run that would write it, and is left as it was.
+    fs::remove_file(out.join("part.swept.glb")).unwrap();
+    let o = sweptvol(&args);
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("already exists"));
+    assert_eq!(stl, fs::read(out.join("part.swept.stl")).unwrap());
+    assert!(!out.join("part.swept.glb").exists());
+
+    let mut bad = run_args(gs, ts, os);
+    bad.extend(["--also", "step", "--name", "other"]);
+    let o = sweptvol(&bad);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("step"));
+}

@@ -239,7 +239,7 @@ def trajectory_csv(rows):
 
 PARTIAL_SUFFIX = ".partial"
 JOB_KEYS = ("resolution", "tolerance", "delta", "epsilon", "backend", "name",
-            "target_triangles", "keep_start_mesh")
+            "target_triangles", "keep_start_mesh", "also")
 FINISHED = ("done", "failed", "cancelled")
 DEPTH_IMAGES = tuple(f"depth-{a}{s}.exr" for a in "xyz" for s in ("min", "max"))
 

@@ -4,4 +4,5 @@ pub mod atomic;
 pub mod exr_depth;
 pub mod gltf_in;
 pub mod gltf_out;
+pub mod mesh_formats;
 pub mod trajectory;

@@ -7,6 +7,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::InputError;
 use crate::grid::{Accuracy, Overrides};
+use crate::io::mesh_formats::MeshFormat;
 use crate::pipeline::{BackendChoice, RunOptions};
 
 /// A folder being written by a client: never read. Renaming it without the suffix commits it.
@@ -25,8 +26,11 @@ pub const DROP_TRAJECTORY_EXT: &str = "csv";
 
 /// Names the daemon writes: bare in a job folder, `<name>.`-prefixed for a drop. A file with
 /// one of these names (bare or prefixed) is never taken as an input.
-pub const OUTPUT_NAMES: [&str; 10] = [
+pub const OUTPUT_NAMES: [&str; 13] = [
     "swept.glb",
+    "swept.stl",
+    "swept.ply",
+    "swept.obj",
     "start.glb",
     "depth-xmin.exr",
     "depth-xmax.exr",
@@ -259,10 +263,12 @@ pub struct JobOptions {
     pub name: Option<String>,
     pub target_triangles: Option<usize>,
     pub keep_start_mesh: Option<bool>,
+    /// Extra mesh formats: any of "stl", "ply", "obj".
+    pub also: Option<Vec<MeshFormat>>,
 }
 
 const JOB_KEYS: &str =
-    "resolution, tolerance, delta, epsilon, backend, name, target_triangles, keep_start_mesh";
+    "resolution, tolerance, delta, epsilon, backend, name, target_triangles, keep_start_mesh, also";
 
 /// Parse `job.json` bytes; `path` names the file in errors (with serde_json's line and column).
 pub fn parse_job_options(path: &Path, bytes: &[u8]) -> Result<JobOptions, InputError> {
@@ -316,6 +322,7 @@ impl JobOptions {
             overwrite: true,
             target_triangles: self.target_triangles.unwrap_or(0),
             keep_start_mesh: self.keep_start_mesh.unwrap_or(false),
+            also: self.also.clone().unwrap_or_default(),
         }
     }
 }
@@ -363,5 +370,11 @@ mod tests {
         let ok =
             parse_job_options(p, br#"{"resolution": 32, "backend": "cpu", "name": "x"}"#).unwrap();
         assert_eq!(ok.backend, Some(BackendChoice::Cpu));
+        let also = parse_job_options(p, br#"{"also": ["stl", "obj"]}"#).unwrap();
+        assert_eq!(also.also, Some(vec![MeshFormat::Stl, MeshFormat::Obj]));
+        assert!(parse_job_options(p, br#"{"also": ["step"]}"#).is_err());
+        for f in MeshFormat::ALL {
+            assert!(is_output_name(f.suffix()), "{f:?}");
+        }
     }
 }
