@@ -66,7 +66,9 @@ fn exr_round_trip_is_outward_and_independently_readable() {
     assert!(check_samples(&input, &back, &tris, &mut Rng(5)) > 10_000);
 
     // The independent reader.
-    let Some(python) = test_python() else { return };
+    let Some(python) = common::test_python("OpenEXR, numpy", "the independent EXR reader") else {
+        return;
+    };
     for (k, path) in files.iter().enumerate() {
         let (axis, side) = (k / 2, if k % 2 == 0 { Side::Min } else { Side::Max });
         let out = Command::new(&python)
@@ -127,23 +129,4 @@ fn exr_round_trip_is_outward_and_independently_readable() {
         assert_eq!(j["attributes"]["sweptvol:axis"], ["x", "y", "z"][axis]);
         assert!(j["attributes"]["sweptvol:voxelSize"].as_f64().unwrap() > 0.0);
     }
-}
-
-/// The Python with OpenEXR that scripts/test-all.sh sets up, or a loud skip; with
-/// SWEPTVOL_REQUIRE_PYTHON=1 its absence is a failure.
-fn test_python() -> Option<String> {
-    let python = std::env::var("SWEPTVOL_TEST_PYTHON").unwrap_or_else(|_| "python3".into());
-    let ok = Command::new(&python)
-        .args(["-c", "import OpenEXR, numpy"])
-        .status()
-        .map(|s| s.success())
-        .unwrap_or(false);
-    if ok {
-        return Some(python);
-    }
-    if std::env::var("SWEPTVOL_REQUIRE_PYTHON").as_deref() == Ok("1") {
-        panic!("SWEPTVOL_REQUIRE_PYTHON=1 but {python} cannot import OpenEXR and numpy (scripts/test-all.sh sets them up)");
-    }
-    eprintln!("\n*** SKIPPED: no Python with OpenEXR ({python}); the independent EXR reader was NOT run. Run scripts/test-all.sh. ***\n");
-    None
 }

@@ -17,24 +17,6 @@ use sweptvol::manifold::Joined;
 use sweptvol::mesh::Mesh;
 use sweptvol::voxel::DenseSet;
 
-/// A Python that has trimesh and manifold3d; with SWEPTVOL_REQUIRE_PYTHON=1 its absence fails.
-fn test_python() -> Option<String> {
-    let python = std::env::var("SWEPTVOL_TEST_PYTHON").unwrap_or_else(|_| "python3".into());
-    let ok = Command::new(&python)
-        .args(["-c", "import trimesh, manifold3d, numpy"])
-        .status()
-        .map(|s| s.success())
-        .unwrap_or(false);
-    if ok {
-        return Some(python);
-    }
-    if std::env::var("SWEPTVOL_REQUIRE_PYTHON").as_deref() == Ok("1") {
-        panic!("SWEPTVOL_REQUIRE_PYTHON=1 but {python} cannot import trimesh and manifold3d (scripts/test-all.sh sets them up)");
-    }
-    eprintln!("\n*** SKIPPED: no Python with trimesh and manifold3d ({python}); the downstream-tool manifold check was NOT run. Run scripts/test-all.sh. ***\n");
-    None
-}
-
 /// Run the checker on `files`; its exit status and output.
 fn check(python: &str, files: &[PathBuf]) -> (bool, String) {
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/manifold_check.py");
@@ -71,7 +53,12 @@ fn random_set(rng: &mut Rng, dims: [usize; 3], density: f64) -> DenseSet {
 
 #[test]
 fn joined_voxel_sets_are_solids_to_trimesh_and_manifold3d() {
-    let Some(python) = test_python() else { return };
+    let Some(python) = common::test_python(
+        "trimesh, manifold3d, numpy",
+        "the downstream-tool manifold check",
+    ) else {
+        return;
+    };
     let dir = tempfile::tempdir().unwrap();
     let mut rng = Rng(0x5eed_1234_abcd_0001);
     let mut sets = vec![
@@ -131,7 +118,12 @@ fn write_job(dir: &Path, name: &str, mesh: &Mesh, poses: &[glam::DMat4]) -> (Pat
 
 #[test]
 fn random_sweeps_are_solids_to_trimesh_and_manifold3d() {
-    let Some(python) = test_python() else { return };
+    let Some(python) = common::test_python(
+        "trimesh, manifold3d, numpy",
+        "the downstream-tool manifold check",
+    ) else {
+        return;
+    };
     let dir = tempfile::tempdir().unwrap();
     let mut rng = Rng(0x0dd_ba11_2024_0003);
     let mut outputs = Vec::new();

@@ -273,3 +273,23 @@ pub fn build(g: &Generator, poses: &[DMat4], n: u32) -> SweepInput {
     )
     .expect("job builds")
 }
+
+/// The Python that scripts/test-all.sh sets up (`SWEPTVOL_TEST_PYTHON`, else `python3`) if it
+/// can import `modules` (comma-separated), else a loud skip; with SWEPTVOL_REQUIRE_PYTHON=1 its
+/// absence is a failure. `what` names the check that would not run.
+pub fn test_python(modules: &str, what: &str) -> Option<String> {
+    let python = std::env::var("SWEPTVOL_TEST_PYTHON").unwrap_or_else(|_| "python3".into());
+    let ok = std::process::Command::new(&python)
+        .args(["-c", &format!("import {modules}")])
+        .status()
+        .map(|s| s.success())
+        .unwrap_or(false);
+    if ok {
+        return Some(python);
+    }
+    if std::env::var("SWEPTVOL_REQUIRE_PYTHON").as_deref() == Ok("1") {
+        panic!("SWEPTVOL_REQUIRE_PYTHON=1 but {python} cannot import {modules} (scripts/test-all.sh sets them up)");
+    }
+    eprintln!("\n*** SKIPPED: no Python with {modules} ({python}); {what} was NOT run. Run scripts/test-all.sh. ***\n");
+    None
+}
