@@ -25,7 +25,7 @@ use exr::prelude::{
 use serde::{Deserialize, Serialize};
 
 use crate::depth::{image_size, DepthImage, DepthImages, AXIS_NAMES, COLUMN_AXIS, ROW_AXIS};
-use crate::grid::Grid;
+use crate::grid::{Grid, MAX_RESOLUTION};
 use crate::io::atomic::Staged;
 
 /// Attribute holding the whole [`DepthMeta`] as JSON text.
@@ -281,6 +281,16 @@ pub fn write_all(
 /// row, +inf = empty).
 pub fn read_depth_exr(path: &Path) -> anyhow::Result<(DepthMeta, Vec<f32>)> {
     let read = || -> anyhow::Result<(DepthMeta, Vec<f32>)> {
+        // The header first: a depth image is at most MAX_RESOLUTION pixels a side, and a
+        // damaged size must be refused before the decoder allocates for it.
+        let headers = exr::meta::MetaData::read_from_file(path, false)?.headers;
+        for h in headers.iter() {
+            let (w, ht) = (h.layer_size.0, h.layer_size.1);
+            ensure!(
+                w <= MAX_RESOLUTION as usize && ht <= MAX_RESOLUTION as usize,
+                "the image claims {w}x{ht} pixels, more than any sweptvol grid ({MAX_RESOLUTION} a side): the file is damaged or not a sweptvol depth image"
+            );
+        }
         let layer = read_first_flat_layer_from_file(path)?.layer_data;
         let attrs = &layer.attributes.other;
         let json = match attrs.get(META_ATTRIBUTE.as_bytes()) {
@@ -863,5 +873,27 @@ mod tests {
         bad.images[2].min.pop();
         assert!(write_depth_exr(&dir.path().join("bad.exr"), &bad, 2, Side::Min, &EXTRA).is_err());
         assert!(!dir.path().join("bad.exr").exists());
+    }
+
+    /// A damaged data window (here claiming 808 million pixels a side, as a fuzzed file did) is
+    /// refused from the header, before the decoder spends seconds and gigabytes on it.
+    #[test]
+    fn a_damaged_image_size_is_refused_from_the_header() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("s.depth-xmin.exr");
+        write_depth_exr(&path, &sample_images(grid()), 0, Side::Min, &EXTRA).unwrap();
+        let mut bytes = fs::read(&path).unwrap();
+        let at = bytes.windows(10).position(|w| w == b"dataWindow").unwrap();
+        // name, NUL, "box2i", NUL, size (4 bytes), then x_min, y_min, x_max, y_max.
+        let x_max = at + 11 + 6 + 4 + 8;
+        bytes[x_max..x_max + 4].copy_from_slice(b"0000");
+        fs::write(&path, &bytes).unwrap();
+        let t = std::time::Instant::now();
+        let err = format!("{:#}", read_depth_exr(&path).unwrap_err());
+        assert!(
+            err.contains("claims") && err.contains("s.depth-xmin.exr"),
+            "{err}"
+        );
+        assert!(t.elapsed().as_secs_f64() < 5.0, "{:?}", t.elapsed());
     }
 }
