@@ -11,6 +11,7 @@ pub mod grid;
 pub mod intersect;
 pub mod io;
 pub mod job;
+pub mod memory;
 pub mod mesh;
 pub mod model;
 pub mod pipeline;
