@@ -3,27 +3,29 @@
 //!
 //! Estimate, bytes, with P = dy·dz + dx·dz + dx·dy the pixels of the three image axes:
 //! - depth images D⁻ and D⁺, f32: 8 B per pixel; classifier range tables, i32 lo and hi: 8 B;
-//! - the voxel boundary mesh, T ≈ 3P triangles (each hit pixel's ray enters and leaves the
-//!   volume at least once, two triangles per face; measured 2.8P on the bundled bunny, up to
-//!   4P for a box filling the grid), and the simplifier's state on it: 260 B per start triangle
-//!   at the peak (measured: 1.95 GB for 7.5e6 triangles at n = 1024), 30 B more with
-//!   --keep-start-mesh (its GLB bytes are held until the write);
+//! - the voxel boundary mesh, T ≈ 2.8P triangles (each hit pixel's ray enters and leaves the
+//!   volume at least once, two triangles per face; 2.83P measured on the bundled bunny at
+//!   n = 1024 and 1500, up to 4P for a box filling the grid), and the simplifier's state on it:
+//!   250 B per start triangle at the peak (measured: 1.95 GB for 7.5e6 triangles at n = 1024,
+//!   4.04 GB for 16.1e6 at n = 1500), 30 B more with --keep-start-mesh (its GLB bytes are held
+//!   until the write);
 //! - BASE_BYTES for the program, its threads and the inputs.
 //!
-//! So about 800·P bytes: 2.5 GB at n = 1024 on a cubic grid (2.2 GB estimated, 1.95 GB
-//! measured for the bunny), growing with n².
+//! So about 716·P bytes, growing with n²: 4.1 GB estimated for the bunny at n = 1500, where
+//! 4.04 GB was measured (docs/benchmarks.md). An estimate, not a bound: a shape with more
+//! boundary per pixel can need more, and a run just under the limit may still fail late.
 
 use crate::error::UsageError;
 use crate::grid::{Grid, K_GLOBAL};
 
 /// Program, thread stacks, inputs and buffers outside the grid-sized structures.
-const BASE_BYTES: f64 = 96.0 * 1048576.0;
+const BASE_BYTES: f64 = 32.0 * 1048576.0;
 /// Depth images and classifier ranges, per pixel.
 const IMAGE_BYTES_PER_PIXEL: f64 = 16.0;
 /// Start-mesh triangles per pixel.
-const TRIANGLES_PER_PIXEL: f64 = 3.0;
+const TRIANGLES_PER_PIXEL: f64 = 2.8;
 /// Start mesh and simplifier at the peak, per start triangle.
-const BYTES_PER_TRIANGLE: f64 = 260.0;
+const BYTES_PER_TRIANGLE: f64 = 250.0;
 /// The start mesh's GLB bytes, per triangle, with --keep-start-mesh.
 const START_GLB_BYTES_PER_TRIANGLE: f64 = 30.0;
 
