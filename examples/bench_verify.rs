@@ -194,6 +194,7 @@ fn main() -> anyhow::Result<()> {
             bound: None,
             bound_scope: Default::default(),
             spacing: None,
+            all_failures: false,
         },
         &verify::Silent,
     )?;

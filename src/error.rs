@@ -54,3 +54,41 @@ impl fmt::Display for InputError {
 }
 
 impl std::error::Error for InputError {}
+
+/// A bad option value or combination (`--resolution 4`, `--tolerance -1`, an output name equal
+/// to an input): exit code 2 like an [`InputError`], with what is wrong and what to do.
+#[derive(Debug, Clone, PartialEq)]
+pub struct UsageError {
+    pub message: String,
+}
+
+impl UsageError {
+    pub fn new(message: impl Into<String>) -> Self {
+        UsageError {
+            message: message.into(),
+        }
+    }
+}
+
+impl fmt::Display for UsageError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(&self.message)
+    }
+}
+
+impl std::error::Error for UsageError {}
+
+/// Exit code 2 errors: a problem with an input file or an option value.
+pub fn is_user_error(e: &anyhow::Error) -> bool {
+    e.chain()
+        .any(|c| c.is::<InputError>() || c.is::<UsageError>())
+}
+
+/// A number for a message: plain notation in a sane range, else scientific (never 300 digits).
+pub fn num(x: f64) -> String {
+    if x == 0.0 || (1e-4..1e7).contains(&x.abs()) {
+        format!("{x}")
+    } else {
+        format!("{x:e}")
+    }
+}

@@ -7,7 +7,7 @@ use glam::{DMat4, DVec3, Vec3};
 use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::error::InputError;
+use crate::error::{num, InputError, UsageError};
 use crate::grid::{fit_grid, Accuracy, Grid, Overrides, Params};
 use crate::model::{Generator, Trajectory};
 
@@ -20,6 +20,17 @@ const U32: f64 = f32::EPSILON as f64 / 2.0;
 const RAY_ROUNDING_FACTOR: f64 = 64.0;
 /// The rounding term may use at most this fraction of a voxel; beyond it f32 is too coarse.
 const MAX_ROUNDING_VOXELS: f64 = 0.1;
+/// Writing the mesh's world coordinates as f32 may move a vertex by at most this fraction of a
+/// voxel (`pipeline::execute` checks the real rounding against the same limit after the fact).
+pub const MAX_OUTPUT_ROUNDING_VOXELS: f64 = 0.01;
+/// Largest world coordinate accepted: f32 outputs (mesh, EXR distances up to twice it) stay finite.
+const MAX_WORLD_COORDINATE: f64 = f32::MAX as f64 / 4.0;
+/// Half the smallest f32 subnormal: the absolute rounding error of f32 near zero.
+const F32_ABS_ROUNDING: f64 = 7.006_492_321_624_085e-46;
+
+/// A world pose of a part and the CSV line of the row that gives it (None: the part stands
+/// where the glTF puts it).
+type LinedPose = (DMat4, Option<u64>);
 
 /// A part as the sweep sees it: its triangles and the poses that move it.
 #[derive(Clone, Debug, Serialize)]
@@ -67,20 +78,20 @@ fn assign_poses(
     generator: &Generator,
     trajectory: &Trajectory,
     csv_path: &Path,
-) -> Result<Vec<(usize, Vec<DMat4>, bool)>, InputError> {
-    let mut out: Vec<(usize, Vec<DMat4>, bool)> = Vec::new();
+) -> Result<Vec<(usize, Vec<LinedPose>, bool)>, InputError> {
+    let mut out: Vec<(usize, Vec<LinedPose>, bool)> = Vec::new();
     if !trajectory.has_node_column {
         for (i, part) in generator.parts.iter().enumerate() {
             let poses = trajectory
                 .poses
                 .iter()
-                .map(|p| p.matrix * part.world)
+                .map(|p| (p.matrix * part.world, Some(p.line)))
                 .collect();
             out.push((i, poses, false));
         }
         return Ok(out);
     }
-    let mut by_part: Vec<Vec<DMat4>> = vec![Vec::new(); generator.parts.len()];
+    let mut by_part: Vec<Vec<LinedPose>> = vec![Vec::new(); generator.parts.len()];
     for pose in &trajectory.poses {
         let name = pose.node.as_deref().unwrap_or_default();
         let hits: Vec<usize> = generator
@@ -91,7 +102,7 @@ fn assign_poses(
             .map(|(i, _)| i)
             .collect();
         match hits.as_slice() {
-            [i] => by_part[*i].push(pose.matrix * generator.parts[*i].world),
+            [i] => by_part[*i].push((pose.matrix * generator.parts[*i].world, Some(pose.line))),
             [] => {
                 let known: Vec<&str> = generator
                     .parts
@@ -122,7 +133,7 @@ fn assign_poses(
     }
     for (i, poses) in by_part.into_iter().enumerate() {
         if poses.is_empty() {
-            out.push((i, vec![generator.parts[i].world], true));
+            out.push((i, vec![(generator.parts[i].world, None)], true));
         } else {
             out.push((i, poses, false));
         }
@@ -130,25 +141,102 @@ fn assign_poses(
     Ok(out)
 }
 
+/// Axis-aligned box of one part's vertices under pose `m`, world units.
+fn pose_box(generator: &Generator, part: usize, m: &DMat4) -> (DVec3, DVec3) {
+    let mut lo = DVec3::splat(f64::INFINITY);
+    let mut hi = DVec3::splat(f64::NEG_INFINITY);
+    for v in &generator.parts[part].positions {
+        let p = m.transform_point3(v.as_dvec3());
+        lo = lo.min(p);
+        hi = hi.max(p);
+    }
+    (lo, hi)
+}
+
 /// Axis-aligned box of all posed vertices, world units (f64, exact up to f64 rounding).
-fn posed_bounds(generator: &Generator, assigned: &[(usize, Vec<DMat4>, bool)]) -> (DVec3, DVec3) {
+fn posed_bounds(
+    generator: &Generator,
+    assigned: &[(usize, Vec<LinedPose>, bool)],
+) -> (DVec3, DVec3) {
     assigned
         .par_iter()
-        .flat_map(|(i, poses, _)| poses.par_iter().map(move |m| (*i, *m)))
-        .map(|(i, m)| {
-            let mut lo = DVec3::splat(f64::INFINITY);
-            let mut hi = DVec3::splat(f64::NEG_INFINITY);
-            for v in &generator.parts[i].positions {
-                let p = m.transform_point3(v.as_dvec3());
-                lo = lo.min(p);
-                hi = hi.max(p);
-            }
-            (lo, hi)
-        })
+        .flat_map(|(i, poses, _)| poses.par_iter().map(move |m| (*i, m.0)))
+        .map(|(i, m)| pose_box(generator, i, &m))
         .reduce(
             || (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
             |a, b| (a.0.min(b.0), a.1.max(b.1)),
         )
+}
+
+/// Refuse, before the sweep, a grid whose world coordinates f32 cannot hold to a small part of
+/// a voxel. The mesh lies in the grid box, so writing a vertex as f32 moves it by at most
+/// u·X + 2⁻¹⁵⁰ (u = 2⁻²⁴, X the box's largest |world coordinate|, 2⁻¹⁵⁰ below the normal
+/// range); that must stay under MAX_OUTPUT_ROUNDING_VOXELS·h, the limit `pipeline` checks on
+/// the real mesh. The error names the pose putting the part farthest out: its CSV line, or the
+/// glTF node of a part no row moves.
+fn check_world_range(
+    generator: &Generator,
+    gltf_path: &Path,
+    csv_path: &Path,
+    assigned: &[(usize, Vec<LinedPose>, bool)],
+    grid: &Grid,
+) -> Result<(), InputError> {
+    let lo = grid.origin();
+    let hi = grid.to_world(DVec3::from_array(grid.dims.map(f64::from)));
+    let x = lo.abs().max(hi.abs()).max_element();
+    let rounding = U32 * x + F32_ABS_ROUNDING;
+    let limit = MAX_OUTPUT_ROUNDING_VOXELS * grid.h;
+    if rounding <= limit && x <= MAX_WORLD_COORDINATE {
+        return Ok(());
+    }
+    // The offender: the pose whose posed vertices reach farthest from the origin.
+    let (part, line, reach) = assigned
+        .iter()
+        .flat_map(|(i, poses, _)| poses.iter().map(move |(m, line)| (*i, m, *line)))
+        .map(|(i, m, line)| {
+            let (a, b) = pose_box(generator, i, m);
+            (i, line, a.abs().max(b.abs()).max_element())
+        })
+        .fold((0, None, f64::NEG_INFINITY), |best, c| {
+            if c.2 > best.2 {
+                c
+            } else {
+                best
+            }
+        });
+    let index = part;
+    let part = &generator.parts[part];
+    // Blame the glTF when the node's own placement already reaches half as far as the pose.
+    let (a, b) = pose_box(generator, index, &part.world);
+    let line = line.filter(|_| a.abs().max(b.abs()).max_element() < reach / 2.0);
+    let node = match &part.node_name {
+        Some(name) => format!("nodes[{}] ({name:?})", part.node_index),
+        None => format!("nodes[{}]", part.node_index),
+    };
+    let message = if x > MAX_WORLD_COORDINATE {
+        format!(
+            "f32 cannot hold the result: posed coordinates reach {} world units (node {node}), beyond the {} that f32 outputs can hold",
+            num(reach),
+            num(MAX_WORLD_COORDINATE)
+        )
+    } else {
+        format!(
+            "f32 cannot hold the result: posed coordinates reach {} world units (node {node}) while the voxel is {}; written as f32 the mesh could move by {}, more than {}% of a voxel",
+            num(reach),
+            num(grid.h),
+            num(rounding),
+            MAX_OUTPUT_ROUNDING_VOXELS * 100.0
+        )
+    };
+    let fix = if x > MAX_WORLD_COORDINATE || reach > 1e6 * grid.h {
+        "move the part nearer the world origin (subtract a common offset from the translations), or use a coarser grid (--tolerance)"
+    } else {
+        "scale the part up (use smaller units): its size is below f32 precision"
+    };
+    Err(match line {
+        Some(line) => InputError::new(csv_path, message, fix).at_line(line),
+        None => InputError::new(gltf_path, message, fix).in_column(node),
+    })
 }
 
 /// Bound on the rounding of one posed triangle's depths, grid units.
@@ -174,7 +262,8 @@ pub fn build(
 ) -> anyhow::Result<SweepInput> {
     let assigned = assign_poses(generator, trajectory, csv_path)?;
     let (lo, hi) = posed_bounds(generator, &assigned);
-    let (grid, params) = fit_grid(lo, hi, accuracy, overrides).map_err(anyhow::Error::msg)?;
+    let (grid, params) = fit_grid(lo, hi, accuracy, overrides).map_err(UsageError::new)?;
+    check_world_range(generator, gltf_path, csv_path, &assigned, &grid)?;
     let to_grid =
         DMat4::from_scale(DVec3::splat(1.0 / grid.h)) * DMat4::from_translation(-grid.origin());
 
@@ -196,7 +285,7 @@ pub fn build(
             .iter()
             .fold(DVec3::ZERO, |m, v| m.max(v.as_dvec3().abs()));
         let pose_start = poses.len() as u32;
-        for m in part_poses {
+        for (m, _) in part_poses {
             let a = to_grid * *m;
             let rows = a.transpose().to_cols_array(); // row-major 4x4
             for r in 0..3 {
@@ -227,10 +316,11 @@ pub fn build(
     if rounding > MAX_ROUNDING_VOXELS {
         let grid_only = rounding_term(0.0, &grid, delta_voxels);
         if grid_only > MAX_ROUNDING_VOXELS / 2.0 {
-            anyhow::bail!(
+            return Err(UsageError::new(format!(
                 "f32 rounding would reach {rounding:.3} voxels at resolution {}; use a resolution of at most 8192",
                 grid.resolution()
-            );
+            ))
+            .into());
         }
         return Err(InputError::new(
             gltf_path,

@@ -12,6 +12,7 @@ pub mod intersect;
 pub mod io;
 pub mod job;
 pub mod manifold;
+pub mod memory;
 pub mod mesh;
 pub mod model;
 pub mod pipeline;

@@ -9,7 +9,7 @@ use std::time::Duration;
 use clap::{Args, Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 
-use sweptvol::error::InputError;
+use sweptvol::error::{self, UsageError};
 use sweptvol::grid::{Accuracy, Overrides};
 use sweptvol::pipeline::{self, Backend, BackendChoice, RunOptions};
 use sweptvol::sweep::Observer;
@@ -48,10 +48,20 @@ struct WatchArgs {
     #[arg(long)]
     once: bool,
     /// Seconds a dropped .glb + .csv pair must stay unchanged before it is taken.
-    #[arg(long, value_name = "SECS", default_value_t = 2.0)]
+    #[arg(
+        long,
+        value_name = "SECS",
+        default_value_t = 2.0,
+        allow_negative_numbers = true
+    )]
     settle: f64,
     /// Seconds between full rescans of the folder (a safety net for lost events).
-    #[arg(long, value_name = "SECS", default_value_t = 10.0)]
+    #[arg(
+        long,
+        value_name = "SECS",
+        default_value_t = 10.0,
+        allow_negative_numbers = true
+    )]
     rescan: f64,
     /// Jobs run at once (CPU backend only; a GPU runs one job at a time).
     #[arg(long, value_name = "N", default_value_t = 1)]
@@ -64,7 +74,7 @@ struct WatchArgs {
     #[arg(long, value_name = "N", conflicts_with = "tolerance")]
     resolution: Option<u32>,
     /// Default error bound ε_global in world units (instead of --resolution).
-    #[arg(long, value_name = "T")]
+    #[arg(long, value_name = "T", allow_negative_numbers = true)]
     tolerance: Option<f64>,
     /// Inputs of one job larger than this in all are refused before they are parsed.
     #[arg(long, value_name = "BYTES", default_value_t = 2 << 30)]
@@ -87,7 +97,7 @@ struct VerifyArgs {
     mesh: PathBuf,
     /// Fail unless the deviation (one-sided Hausdorff distance from the mesh to the swept
     /// volume, upper bound) is at most B world units.
-    #[arg(long, value_name = "B")]
+    #[arg(long, value_name = "B", allow_negative_numbers = true)]
     bound: Option<f64>,
     /// Where --bound must hold: everywhere, or axis-visible (mesh points whose six axis rays
     /// all come within B of the swept volume lie in filled pockets and are accepted: the scope
@@ -95,8 +105,12 @@ struct VerifyArgs {
     #[arg(long, value_enum, default_value_t = BoundScope::Everywhere)]
     bound_scope: BoundScope,
     /// Finest covering radius of the samples, world units [default: mesh diagonal / 2000].
-    #[arg(long, value_name = "S")]
+    #[arg(long, value_name = "S", allow_negative_numbers = true)]
     spacing: Option<f64>,
+    /// Search on after the first posed triangle proven outside the mesh and count every
+    /// failure (default: stop there, since the certificate has failed).
+    #[arg(long)]
+    all_failures: bool,
     /// Print the report as JSON on stdout (no progress bar).
     #[arg(long)]
     json: bool,
@@ -120,13 +134,13 @@ struct RunArgs {
     #[arg(long, value_name = "N", conflicts_with = "tolerance")]
     resolution: Option<u32>,
     /// Error bound ε_global in world units; sets the voxel size h = t/(2√3+√2).
-    #[arg(long, value_name = "T")]
+    #[arg(long, value_name = "T", allow_negative_numbers = true)]
     tolerance: Option<f64>,
     /// Offset radius δ in world units [default: (2√3+√2)h/2].
-    #[arg(long, value_name = "D")]
+    #[arg(long, value_name = "D", allow_negative_numbers = true)]
     delta: Option<f64>,
     /// Simplification tolerance ε in world units [default: √3h/2].
-    #[arg(long, value_name = "E")]
+    #[arg(long, value_name = "E", allow_negative_numbers = true)]
     epsilon: Option<f64>,
     /// Where the sweep runs: auto takes a hardware GPU if present, else the CPU.
     #[arg(long, value_enum, default_value_t = BackendChoice::Auto)]
@@ -196,7 +210,8 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
     let job = pipeline::prepare(&opts)?;
     let backend = Backend::acquire(args.backend)?;
     if let Backend::Cpu { reason } = &backend {
-        if args.backend == BackendChoice::Auto {
+        // Under --quiet a successful run prints nothing, so the fallback is only logged.
+        if args.backend == BackendChoice::Auto && !args.quiet {
             tracing::warn!("{reason}");
         }
     }
@@ -234,9 +249,9 @@ fn watch(args: WatchArgs) -> anyhow::Result<()> {
         if v.is_finite() && v >= 0.0 {
             Ok(Duration::from_secs_f64(v))
         } else {
-            Err(anyhow::anyhow!(
+            Err(UsageError::new(format!(
                 "--{flag} {v}: give a number of seconds >= 0"
-            ))
+            )))
         }
     };
     let opts = WatchOptions {
@@ -282,6 +297,7 @@ fn verify(args: VerifyArgs) -> anyhow::Result<ExitCode> {
         bound: args.bound,
         bound_scope: args.bound_scope,
         spacing: args.spacing,
+        all_failures: args.all_failures,
     };
     let bar = if args.quiet || args.json {
         ProgressBar::hidden()
@@ -309,6 +325,12 @@ fn verify(args: VerifyArgs) -> anyhow::Result<ExitCode> {
 }
 
 fn main() -> ExitCode {
+    // Mesa's implicit Vulkan layer VK_LAYER_MESA_device_select probes Wayland while adapters
+    // are enumerated and prints "XDG_RUNTIME_DIR is invalid" without a session; it only picks
+    // the display's GPU, which a compute job does not need. Set before any thread starts.
+    if std::env::var_os("NODEVICE_SELECT").is_none() {
+        std::env::set_var("NODEVICE_SELECT", "1");
+    }
     let cli = Cli::parse();
     let quiet = match &cli.command {
         Command::Run(a) => a.quiet,
@@ -322,6 +344,7 @@ fn main() -> ExitCode {
                 .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default_level)),
         )
         .with_writer(std::io::stderr)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .with_target(false)
         .init();
     let result = match cli.command {
@@ -334,7 +357,7 @@ fn main() -> ExitCode {
         Err(e) => {
             eprintln!("error: {e:#}");
             // 2: the input or the options are wrong; 1: anything else.
-            if e.downcast_ref::<InputError>().is_some() {
+            if error::is_user_error(&e) {
                 ExitCode::from(2)
             } else {
                 ExitCode::from(1)

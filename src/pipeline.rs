@@ -237,13 +237,17 @@ pub fn output_stem(opts: &RunOptions) -> anyhow::Result<String> {
             .unwrap_or_default(),
     };
     if stem.contains(['/', '\\']) || stem.starts_with('.') {
-        bail!("--name {stem:?} must be a plain file name without slashes or a leading dot");
+        return Err(crate::error::UsageError::new(format!(
+            "--name {stem:?} must be a plain file name without slashes or a leading dot"
+        ))
+        .into());
     }
     if opts.name.is_none() && stem.is_empty() {
-        bail!(
+        return Err(crate::error::UsageError::new(format!(
             "cannot derive an output name from {}; pass --name",
             opts.trajectory.display()
-        );
+        ))
+        .into());
     }
     Ok(stem)
 }
@@ -305,6 +309,7 @@ pub struct Prepared {
 pub fn prepare(opts: &RunOptions) -> anyhow::Result<Prepared> {
     let t0 = Instant::now();
     let outputs = output_paths(opts)?;
+    refuse_outputs_on_inputs(opts, &outputs)?;
     if !opts.overwrite {
         if let Some(existing) = outputs.iter().find(|p| p.exists()) {
             bail!(
@@ -327,6 +332,11 @@ pub fn prepare(opts: &RunOptions) -> anyhow::Result<Prepared> {
         opts.accuracy,
         opts.overrides,
     )?;
+    crate::memory::check(
+        &input.grid,
+        opts.keep_start_mesh,
+        crate::memory::available(),
+    )?;
     Ok(Prepared {
         opts: opts.clone(),
         outputs,
@@ -335,6 +345,49 @@ pub fn prepare(opts: &RunOptions) -> anyhow::Result<Prepared> {
         read_secs: (t1 - t0).as_secs_f64(),
         setup_secs: t1.elapsed().as_secs_f64(),
     })
+}
+
+/// No output may be an input, with or without `--overwrite`: the rename would replace it. Paths
+/// are compared canonicalized (the output's folder resolved, since the output may not exist
+/// yet); an existing output is also compared by device and inode (hard links, symlinks).
+fn refuse_outputs_on_inputs(opts: &RunOptions, outputs: &[PathBuf]) -> anyhow::Result<()> {
+    use std::os::unix::fs::MetadataExt;
+    type Identity = Option<(u64, u64)>; // (device, inode)
+    let inputs: Vec<(&PathBuf, Option<PathBuf>, Identity)> = [&opts.generator, &opts.trajectory]
+        .into_iter()
+        .map(|p| {
+            let id = std::fs::metadata(p).ok().map(|m| (m.dev(), m.ino()));
+            (p, p.canonicalize().ok(), id)
+        })
+        .collect();
+    for out in outputs {
+        let resolved = match (out.parent(), out.file_name()) {
+            (Some(dir), Some(name)) => {
+                let dir = if dir.as_os_str().is_empty() {
+                    std::path::Path::new(".")
+                } else {
+                    dir
+                };
+                dir.canonicalize().ok().map(|d| d.join(name))
+            }
+            _ => None,
+        };
+        let id = std::fs::metadata(out).ok().map(|m| (m.dev(), m.ino()));
+        for (input, real, input_id) in &inputs {
+            let same_path = resolved.is_some() && resolved == *real;
+            let same_file = id.is_some() && id == *input_id;
+            if same_path || same_file {
+                return Err(crate::error::UsageError::new(format!(
+                    "output {} would replace the input {}{}; nothing was written: choose another --out or --name, or rename the input",
+                    out.display(),
+                    input.display(),
+                    if same_path { "" } else { " (the same file by a hard or symbolic link)" }
+                ))
+                .into());
+            }
+        }
+    }
+    Ok(())
 }
 
 /// Sweep a prepared job and write its outputs.

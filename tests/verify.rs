@@ -271,8 +271,14 @@ fn run_output_passes_and_broken_copies_fail_with_the_right_message() {
             q.as_vec3().to_array()
         })
         .collect();
-    let (code, r) = broken("shrunk.glb", &shrunk, &tris, &extra);
+    // The search stops at the first proven failure by default; the worst needs them all.
+    let (code, fast) = broken("shrunk.glb", &shrunk, &tris, &extra);
     assert_eq!(code, 3);
+    assert_eq!(fast["containment"]["stopped_early"], true);
+    let all = [&extra[..], &["--all-failures"]].concat();
+    let (code, r) = broken("shrunk.glb", &shrunk, &tris, &all);
+    assert_eq!(code, 3);
+    assert_eq!(r["containment"]["stopped_early"], false);
     let f = failures(&r);
     assert!(f.contains("points outside the mesh"), "{f}");
     assert!(r["containment"]["outside"].as_u64().unwrap() > 0);

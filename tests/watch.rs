@@ -338,6 +338,88 @@ fn job_folder_produces_all_outputs_and_done() {
     assert_eq!(input_files(&dir), before);
 }
 
+/// A writer stalling longer than --settle: the job starts on half the CSV (cut at a row
+/// boundary, so it parses). The rest arrives while it runs: that run publishes nothing and is
+/// requeued, and only the complete trajectory's result ever becomes visible (issue 14).
+#[test]
+fn a_drop_changed_during_its_run_publishes_nothing_and_runs_again() {
+    let (_tmp, dir) = watched();
+    let (g, full) = long_job_files(2);
+    let lines: Vec<&str> = full.lines().collect();
+    let (head, rows): (Vec<&str>, Vec<&str>) = lines
+        .iter()
+        .partition(|l| l.starts_with('#') || l.starts_with("frame"));
+    let half = head.join("\n") + "\n" + &rows[..rows.len() / 2].join("\n") + "\n";
+    let rest = rows[rows.len() / 2..].join("\n") + "\n";
+    let mut d = Daemon::start(
+        &dir,
+        "daemon.log",
+        &["--settle", "0.3", "--resolution", "48"],
+    );
+    fs::write(dir.join("part.glb"), &g).unwrap();
+    fs::write(dir.join("part.csv"), &half).unwrap();
+    let status_path = dir.join("part.status.json");
+    wait_until(Duration::from_secs(30), "the run on the half file", || {
+        state(&status_path) == "running"
+    });
+    use std::io::Write;
+    let mut f = fs::OpenOptions::new()
+        .append(true)
+        .open(dir.join("part.csv"))
+        .unwrap();
+    f.write_all(rest.as_bytes()).unwrap();
+    drop(f);
+    let mut requeued = false;
+    wait_until(
+        Duration::from_secs(120),
+        "the complete drop to finish",
+        || {
+            let s = status(&status_path);
+            let st = s.as_ref().and_then(|s| s["state"].as_str()).unwrap_or("");
+            if st == "queued" && !requeued {
+                let m = s.as_ref().unwrap()["message"].as_str().unwrap_or("");
+                requeued = m.contains("inputs changed");
+            }
+            if let Ok(bytes) = fs::read(dir.join("part.report.json")) {
+                let r: Value = serde_json::from_slice(&bytes).unwrap();
+                assert_eq!(
+                    r["counts"]["poses"],
+                    rows.len(),
+                    "a half result was published"
+                );
+            }
+            st == "done"
+        },
+    );
+    assert!(requeued, "the first run was not requeued:\n{}", d.log());
+    assert_eq!(check_visible_outputs(&dir, "part."), OUTPUTS.len());
+    assert_eq!(fs::read(dir.join("part.glb")).unwrap(), g);
+    assert_eq!(fs::read_to_string(dir.join("part.csv")).unwrap(), full);
+    d.signal(libc::SIGTERM);
+    assert!(d.wait(Duration::from_secs(20)).success(), "{}", d.log());
+}
+
+/// status.json names the stage the pipeline is in, and its message follows it.
+#[test]
+fn status_message_follows_the_stage() {
+    let (_tmp, dir) = watched();
+    let (g, c) = long_job_files(2);
+    let mut d = Daemon::start(&dir, "daemon.log", &["--resolution", "48"]);
+    let job = submit(
+        &dir,
+        "job",
+        &[("generator.glb", &g), ("trajectory.csv", c.as_bytes())],
+    );
+    let status_path = job.join("status.json");
+    wait_until(Duration::from_secs(60), "the sweep stage", || {
+        status(&status_path).is_some_and(|s| s["stage"] == "sweep")
+    });
+    let s = status(&status_path).unwrap();
+    assert!(s["message"].as_str().unwrap().contains("sweeping"), "{s}");
+    d.signal(libc::SIGTERM);
+    assert!(d.wait(Duration::from_secs(30)).success(), "{}", d.log());
+}
+
 #[test]
 fn slow_chunked_drop_is_not_started_before_it_is_complete() {
     let (_tmp, dir) = watched();

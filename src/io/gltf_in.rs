@@ -122,6 +122,73 @@ fn refuse_ignored_geometry(path: &Path, doc: &gltf::Document) -> Result<(), Inpu
 /// Parses and validates the document. Missing or malformed POSITION `min`/`max`
 /// are tolerated: they are required by the spec but never used here.
 fn open(path: &Path, bytes: &[u8]) -> Result<Gltf, InputError> {
+    check_container(path, bytes)?;
+    let gltf = parse_document(path, bytes)?;
+    let version = &gltf.document.as_json().asset.version;
+    if version.split('.').next() != Some("2") {
+        return Err(InputError::new(
+            path,
+            format!("the file is glTF {version:?}; only glTF 2.0 is supported"),
+            "re-export the file as glTF 2.0 (glTF 1.0 files are not read)",
+        )
+        .in_column("asset.version"));
+    }
+    Ok(gltf)
+}
+
+/// A GLB starts with the magic `glTF` and version 2, a .gltf with a JSON object: anything else
+/// is named for what it is rather than reported as a JSON syntax error.
+fn check_container(path: &Path, bytes: &[u8]) -> Result<(), InputError> {
+    if let Some(header) = bytes.strip_prefix(b"glTF") {
+        let version = header
+            .get(..4)
+            .map(|v| u32::from_le_bytes([v[0], v[1], v[2], v[3]]));
+        return match version {
+            Some(2) => Ok(()),
+            Some(v) => Err(InputError::new(
+                path,
+                format!(
+                    "the GLB container has version {v}; only version 2 (glTF 2.0) is supported"
+                ),
+                REEXPORT,
+            )),
+            None => Err(InputError::new(
+                path,
+                format!(
+                    "the file is {} bytes: too short for a GLB header",
+                    bytes.len()
+                ),
+                "the file is truncated: re-export it",
+            )),
+        };
+    }
+    let text = bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(bytes);
+    if text.iter().find(|b| !b.is_ascii_whitespace()) == Some(&b'{') {
+        return Ok(());
+    }
+    let head = &bytes[..bytes.len().min(8)];
+    let hex: Vec<String> = head.iter().map(|b| format!("{b:02x}")).collect();
+    let ascii: String = head
+        .iter()
+        .map(|&b| {
+            if b.is_ascii_graphic() || b == b' ' {
+                b as char
+            } else {
+                '.'
+            }
+        })
+        .collect();
+    Err(InputError::new(
+        path,
+        format!(
+            "not a glTF or GLB file: it starts with the bytes {} ({ascii:?}); a .glb starts with \"glTF\", a .gltf with a JSON object",
+            if hex.is_empty() { "(none: the file is empty)".to_string() } else { hex.join(" ") }
+        ),
+        "give the generator as glTF 2.0 (.glb, or .gltf with its buffers); re-export it from the modelling tool",
+    ))
+}
+
+fn parse_document(path: &Path, bytes: &[u8]) -> Result<Gltf, InputError> {
     use gltf::json::validation::Validate;
     let gltf = Gltf::from_slice_without_validation(bytes).map_err(|e| parse_error(path, e))?;
     let json = gltf.document.as_json();
@@ -370,6 +437,25 @@ fn collect_parts(
             )
             .in_column(at));
         }
+        let label = match node.name() {
+            Some(name) => format!("{at} ({name:?})"),
+            None => at.clone(),
+        };
+        if let Transform::Matrix { matrix } = node.transform() {
+            // Column-major: the last row is element 3 of each column.
+            let last_row = matrix.map(|column| column[3]);
+            if last_row != [0.0, 0.0, 0.0, 1.0] {
+                return Err(InputError::new(
+                    path,
+                    format!(
+                        "the node's matrix is not affine: its last row is {} {} {} {}, not 0 0 0 1 (projective transforms are not supported)",
+                        last_row[0], last_row[1], last_row[2], last_row[3]
+                    ),
+                    "give the node an affine matrix (column-major elements 3, 7, 11, 15 = 0, 0, 0, 1) or translation/rotation/scale, then re-export",
+                )
+                .in_column(label));
+            }
+        }
         let world = parent * local_matrix(&node);
         if !world.is_finite() {
             return Err(InputError::new(
@@ -380,6 +466,17 @@ fn collect_parts(
             .in_column(at));
         }
         if let Some(mesh) = node.mesh() {
+            if let Some(det) = singular(&world) {
+                return Err(InputError::new(
+                    path,
+                    format!(
+                        "the node's world transform is singular (its 3x3 part has determinant {}): a zero scale or a degenerate matrix flattens the mesh",
+                        crate::error::num(det)
+                    ),
+                    "give the node and its parents non-zero scales and invertible matrices, then re-export",
+                )
+                .in_column(label));
+            }
             if node.skin().is_some() {
                 generator.warnings.push(format!(
                     "{at}: skinning is ignored; the mesh is placed by the node transform"
@@ -405,6 +502,15 @@ fn collect_parts(
         stack.extend(children.into_iter().rev().map(|c| (c, world)));
     }
     Ok(())
+}
+
+/// The determinant of `m`'s 3x3 part when it is singular, by the trajectory reader's rule:
+/// |det| at most 1e-12 times the product of the column lengths (or a zero column).
+fn singular(m: &DMat4) -> Option<f64> {
+    let linear = glam::DMat3::from_mat4(*m);
+    let det = linear.determinant();
+    let scale = linear.x_axis.length() * linear.y_axis.length() * linear.z_axis.length();
+    (scale == 0.0 || det.abs() <= 1e-12 * scale || !det.is_finite()).then_some(det)
 }
 
 /// The node's local matrix in f64 (TRS composed in f64, quaternion normalised).

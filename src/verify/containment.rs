@@ -11,7 +11,7 @@
 //! covering radius is at most `floor` under a single pose; such a piece is "outside" when its
 //! centre has w < 1/2, else "too close to certify".
 
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 
 use glam::DVec3;
 use serde::Serialize;
@@ -78,6 +78,9 @@ pub struct Containment {
     pub winding_evaluations: u64,
     /// The farthest outside of the points found outside.
     pub worst_outside: Option<OutsidePoint>,
+    /// The search stopped at the first point proven outside (fail fast): the counts cover only
+    /// the posed triangles finished by then.
+    pub stopped_early: bool,
 }
 
 impl Containment {
@@ -90,6 +93,7 @@ impl Containment {
         self.too_close_samples += o.too_close_samples;
         self.ball_tests += o.ball_tests;
         self.winding_evaluations += o.winding_evaluations;
+        self.stopped_early |= o.stopped_early;
         self.worst_outside = match (self.worst_outside, o.worst_outside) {
             (Some(a), Some(b)) => Some(if b.distance > a.distance { b } else { a }),
             (a, b) => a.or(b),
@@ -109,9 +113,25 @@ struct Ctx<'a> {
     progress: &'a dyn Progress,
     done: &'a AtomicU64,
     total: u64,
+    /// Set at the first point proven outside; None: search on and find every failure.
+    stop: Option<&'a AtomicBool>,
+}
+
+impl Ctx<'_> {
+    fn stopped(&self) -> bool {
+        self.stop.is_some_and(|s| s.load(Ordering::Relaxed))
+    }
+    /// A point is proven outside: the certificate fails whatever the rest holds.
+    fn found_outside(&self) {
+        if let Some(s) = self.stop {
+            s.store(true, Ordering::Relaxed);
+        }
+    }
 }
 
 /// Check every posed triangle of `part`. `floor`: the finest covering radius, world units.
+/// With `stop`, the search ends soon after a point is proven outside (the flag is shared, so
+/// one part's failure stops the others); without it every failure is found and counted.
 pub fn check(
     part: &PosedPart,
     target: &Target,
@@ -119,6 +139,7 @@ pub fn check(
     progress: &dyn Progress,
     done: &AtomicU64,
     total: u64,
+    stop: Option<&AtomicBool>,
 ) -> Containment {
     let ctx = Ctx {
         part,
@@ -127,8 +148,11 @@ pub fn check(
         progress,
         done,
         total,
+        stop,
     };
-    visit(&ctx, 0, 0)
+    let mut out = visit(&ctx, 0, 0);
+    out.stopped_early = ctx.stopped();
+    out
 }
 
 const CERTIFIED: u8 = 0;
@@ -136,6 +160,9 @@ const TOO_CLOSE: u8 = 1;
 const OUTSIDE: u8 = 2;
 
 fn visit(ctx: &Ctx, node: u32, cluster: u32) -> Containment {
+    if ctx.stopped() {
+        return Containment::default();
+    }
     let part = ctx.part;
     let n = &part.bvh.nodes[node as usize];
     let c = &part.tree.clusters[cluster as usize];
@@ -162,6 +189,7 @@ fn visit(ctx: &Ctx, node: u32, cluster: u32) -> Containment {
         } else {
             out.outside = count;
             out.outside_samples = 1;
+            ctx.found_outside();
             // A real point in the ball: the first triangle's centroid under the reference pose.
             let first = first_triangle(part, node);
             let (lc, _) = geom::ball(&part.bvh.tris[first as usize]);
@@ -244,6 +272,13 @@ fn triangle(ctx: &Ctx, t: u32, cluster: u32) -> Containment {
     let mut out = Containment::default();
     let mut stack: Vec<([DVec3; 3], u32)> = vec![(part.bvh.tris[t as usize], cluster)];
     while let Some((piece, ci)) = stack.pop() {
+        if ctx.stopped() {
+            // Unfinished poses prove nothing: count only those already proven outside.
+            let outside = status.iter().filter(|s| **s == OUTSIDE).count() as u64;
+            out.posed_triangles = outside;
+            out.outside = outside;
+            return out;
+        }
         let c: &Cluster = &part.tree.clusters[ci as usize];
         let pose = &part.poses[c.reference as usize];
         let world = piece.map(|v| pose.matrix.transform_point3(v));
@@ -262,6 +297,7 @@ fn triangle(ctx: &Ctx, t: u32, cluster: u32) -> Containment {
             if ctx.target.winding.at(q) < 0.5 {
                 mark(OUTSIDE, &mut status);
                 out.outside_samples += 1;
+                ctx.found_outside();
                 let p = outside_point(ctx, q, t, c.reference);
                 if out
                     .worst_outside
@@ -286,6 +322,7 @@ fn triangle(ctx: &Ctx, t: u32, cluster: u32) -> Containment {
             if !on_surface && ctx.target.winding.at(q) < 0.5 {
                 mark(OUTSIDE, &mut status);
                 out.outside_samples += 1;
+                ctx.found_outside();
                 if out
                     .worst_outside
                     .as_ref()

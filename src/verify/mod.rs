@@ -17,12 +17,13 @@ pub mod poses;
 pub mod winding;
 
 use std::path::PathBuf;
-use std::sync::atomic::AtomicU64;
+use std::sync::atomic::{AtomicBool, AtomicU64};
 use std::time::Instant;
 
 use glam::DVec3;
 use serde::Serialize;
 
+use crate::error::UsageError;
 use crate::io::{gltf_in, trajectory};
 use bvh::Bvh;
 use containment::{Containment, Target};
@@ -34,6 +35,9 @@ use winding::Winding;
 
 /// Default finest covering radius: this fraction of the mesh's bounding-box diagonal.
 pub const DEFAULT_SPACING_FRACTION: f64 = 1.0 / 2000.0;
+/// `--spacing` is refused when covering the mesh at that radius could take more samples than
+/// this (about 10⁴ s at 10⁶ samples/s); the default spacing needs about 10⁷ on a sphere.
+pub const MAX_SAMPLES: f64 = 1e10;
 
 /// Where `--bound` must hold.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, clap::ValueEnum)]
@@ -69,6 +73,9 @@ pub struct VerifyOptions {
     pub bound_scope: BoundScope,
     /// Finest covering radius of the samples, world units [default: mesh diagonal / 2000].
     pub spacing: Option<f64>,
+    /// Search on after the first posed triangle proven outside and count every failure
+    /// (default: stop there, the certificate has failed).
+    pub all_failures: bool,
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -137,16 +144,20 @@ pub struct Report {
 pub fn verify(opts: &VerifyOptions, progress: &dyn Progress) -> anyhow::Result<Report> {
     let t0 = Instant::now();
     if let Some(s) = opts.spacing {
-        anyhow::ensure!(
-            s.is_finite() && s > 0.0,
-            "--spacing {s} must be a positive number of world units"
-        );
+        if !(s.is_finite() && s > 0.0) {
+            return Err(UsageError::new(format!(
+                "--spacing {s} must be a positive number of world units"
+            ))
+            .into());
+        }
     }
     if let Some(b) = opts.bound {
-        anyhow::ensure!(
-            b.is_finite() && b >= 0.0,
-            "--bound {b} must be a non-negative number of world units"
-        );
+        if !(b.is_finite() && b >= 0.0) {
+            return Err(UsageError::new(format!(
+                "--bound {b} must be a non-negative number of world units"
+            ))
+            .into());
+        }
     }
     let generator = gltf_in::read_generator(&opts.generator)?;
     let traj = trajectory::read_trajectory(&opts.trajectory)?;
@@ -180,6 +191,9 @@ pub fn verify(opts: &VerifyOptions, progress: &dyn Progress) -> anyhow::Result<R
         .spacing
         .unwrap_or(diagonal * DEFAULT_SPACING_FRACTION)
         .max(f64::MIN_POSITIVE);
+    if let Some(s) = opts.spacing {
+        check_spacing(s, &mesh, &parts)?;
+    }
     let scale = lo.abs().max(hi.abs()).max_element().max(diagonal);
     let mesh_bvh = Bvh::build(mesh.clone(), 4);
     let t2 = Instant::now();
@@ -200,9 +214,11 @@ pub fn verify(opts: &VerifyOptions, progress: &dyn Progress) -> anyhow::Result<R
         abs_margin: 1e-12 * scale,
     };
     let done = AtomicU64::new(0);
+    let stop = AtomicBool::new(false);
+    let stop = (!opts.all_failures).then_some(&stop);
     let containment = parts
         .iter()
-        .map(|p| containment::check(p, &target, spacing, progress, &done, posed))
+        .map(|p| containment::check(p, &target, spacing, progress, &done, posed, stop))
         .fold(Containment::default(), Containment::merge);
     let t4 = Instant::now();
 
@@ -232,10 +248,19 @@ pub fn verify(opts: &VerifyOptions, progress: &dyn Progress) -> anyhow::Result<R
     }
     if containment.outside > 0 {
         let w = containment.worst_outside.as_ref();
+        let of = if containment.stopped_early {
+            format!(
+                "at least {} of {posed} posed triangles have points outside the mesh (the search stopped at the first proven one; --all-failures lists them all)",
+                containment.outside
+            )
+        } else {
+            format!(
+                "{} of {} posed triangles have points outside the mesh",
+                containment.outside, containment.posed_triangles
+            )
+        };
         failures.push(format!(
-            "containment: {} of {} posed triangles have points outside the mesh{}",
-            containment.outside,
-            containment.posed_triangles,
+            "containment: {of}{}",
             w.map(|w| format!(
                 " (worst {} outside, {})",
                 fmt_len(w.distance),
@@ -335,6 +360,36 @@ pub fn verify(opts: &VerifyOptions, progress: &dyn Progress) -> anyhow::Result<R
         },
         threads: rayon::current_num_threads(),
     })
+}
+
+/// Refuse a `--spacing` whose samples could not be computed in a sane time: covering a
+/// triangle of area A by pieces of covering radius s takes at least A / ((3√3/4)·s²) pieces
+/// (an equilateral piece with circumradius s has the largest area), over the mesh (deviation)
+/// and every posed generator triangle (containment, bounded by its posed area).
+fn check_spacing(s: f64, mesh: &[[DVec3; 3]], parts: &[PosedPart]) -> Result<(), UsageError> {
+    let area = |t: &[DVec3; 3]| (t[1] - t[0]).cross(t[2] - t[0]).length() / 2.0;
+    let mesh_area: f64 = mesh.iter().map(area).sum();
+    let posed_area: f64 = parts
+        .iter()
+        .map(|p| {
+            let local: f64 = p.bvh.tris.iter().map(area).sum();
+            // A pose scales areas by at most σ_max².
+            p.poses
+                .iter()
+                .map(|q| q.sigma_max * q.sigma_max)
+                .sum::<f64>()
+                * local
+        })
+        .sum();
+    let piece = 3f64.sqrt() * 3.0 / 4.0 * s * s;
+    let samples = (mesh_area + posed_area) / piece;
+    if samples > MAX_SAMPLES {
+        let fits = ((mesh_area + posed_area) / (MAX_SAMPLES * 3f64.sqrt() * 3.0 / 4.0)).sqrt();
+        return Err(UsageError::new(format!(
+            "--spacing {s:e} would need up to {samples:.1e} samples (mesh area {mesh_area:.3e}, posed generator area {posed_area:.3e}), more than the limit of {MAX_SAMPLES:.0e}; use --spacing {fits:.3e} or more, or leave it out (default: mesh diagonal / 2000)"
+        )));
+    }
+    Ok(())
 }
 
 fn fmt_len(x: f64) -> String {

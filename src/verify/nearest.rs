@@ -144,8 +144,11 @@ pub fn nearest(
     if let Some((pi, pose)) = scratch.last {
         if let (Some(part), Some(f)) = (parts.get(pi as usize), frames.get(pi as usize)) {
             let q = f.inverse[f.position[pose as usize] as usize].transform_point3(p);
+            // A degenerate pose (no finite inverse) gives no q and no triangle: no guess.
             let (_, tri) = part.bvh.nearest(q);
-            best = exact(part, pi, pose, tri, p);
+            if (tri as usize) < part.bvh.tris.len() {
+                best = exact(part, pi, pose, tri, p);
+            }
         }
     }
     if best.dist > threshold {
@@ -353,6 +356,26 @@ mod tests {
                 assert!(lower <= truth + 1e-12, "lower {lower} > {truth}");
                 assert!(lower >= hit.dist - tol - 1e-12);
             }
+        }
+    }
+
+    /// A zero-scale pose has no inverse: the search still answers (exactly, since it falls back
+    /// to visiting every pair) instead of indexing past the triangles (issue 14).
+    #[test]
+    fn singular_poses_do_not_panic() {
+        let mut rng = Rng(3);
+        let mut part = random_part(&mut rng, 20, 4, 0.0);
+        for pose in &mut part.poses {
+            *pose = PartPose::new(DMat4::from_scale(DVec3::new(1.0, 0.0, 1.0)), None, None);
+        }
+        let part = PosedPart::new(0, "flat".into(), part.bvh.tris.clone(), part.poses);
+        let parts = vec![part];
+        let frames: Vec<Frames> = parts.iter().map(Frames::new).collect();
+        let mut scratch = Scratch::default();
+        for _ in 0..20 {
+            let p = 2.0 * rng.v(1.0);
+            let (hit, _) = nearest(&parts, &frames, &mut scratch, p, f64::NEG_INFINITY, 0.0);
+            assert!((hit.dist - brute_force(&parts[0], p)).abs() <= 1e-12);
         }
     }
 

@@ -119,6 +119,19 @@ pub fn assign(
         };
         for i in targets {
             let m = p.matrix * generator.parts[i].world;
+            if let Some(det) = singular(&m) {
+                let part = &generator.parts[i];
+                return Err(InputError::new(
+                    csv_path,
+                    format!(
+                        "the row's matrix times the world transform of node {} ({:?}) is singular (determinant {det:e}): the posed part is flat",
+                        part.node_index,
+                        part.node_name.as_deref().unwrap_or("")
+                    ),
+                    "give the row and the node invertible transforms with non-zero scales",
+                )
+                .at_line(p.line));
+            }
             by_part[i].push(PartPose::new(m, Some(row as u32), Some(p.line)));
         }
     }
@@ -128,6 +141,19 @@ pub fn assign(
         }
     }
     Ok(by_part)
+}
+
+/// The determinant of `m`'s 3x3 part if it is singular: |det| at most 1e-12 times the product
+/// of its column lengths (the rule of the trajectory reader, written again here).
+fn singular(m: &DMat4) -> Option<f64> {
+    let cols = [
+        m.x_axis.truncate(),
+        m.y_axis.truncate(),
+        m.z_axis.truncate(),
+    ];
+    let det = cols[0].dot(cols[1].cross(cols[2]));
+    let scale = cols.iter().map(|c| c.length()).product::<f64>();
+    (scale == 0.0 || !det.is_finite() || det.abs() <= 1e-12 * scale).then_some(det)
 }
 
 /// A set of poses tested together: a contiguous range of [`PoseTree::perm`], a reference pose,

@@ -18,13 +18,22 @@ use crate::sweep::{Cancelled, Observer};
 /// job.json larger than this is refused before it is parsed.
 const MAX_JOB_JSON_BYTES: u64 = 1 << 20;
 
-/// Where each stage starts on the 0..1 progress scale; the sweep fills the span up to classify.
-const STAGE_PROGRESS: [(&str, f64); 5] = [
-    ("reading", 0.0),
-    ("sweep", 0.05),
-    ("classify", 0.85),
-    ("simplify", 0.9),
-    ("write", 0.97),
+/// Where each stage starts on the 0..1 progress scale (the sweep fills the span up to
+/// classify), and the status message while it runs.
+const STAGE_PROGRESS: [(&str, f64, &str); 5] = [
+    ("reading", 0.0, "reading the inputs"),
+    ("sweep", 0.05, "sweeping the poses"),
+    (
+        "classify",
+        0.85,
+        "classifying voxels and extracting the boundary mesh",
+    ),
+    (
+        "simplify",
+        0.9,
+        "simplifying the mesh within the error bound",
+    ),
+    ("write", 0.97, "writing the outputs"),
 ];
 
 /// What every job shares.
@@ -56,6 +65,11 @@ pub fn run(ctx: &Context, job: &QueuedJob) -> State {
         status,
         cancel: job.id.cancel_path(ctx.root),
         shutdown: ctx.shutdown,
+        drop_inputs: match &job.id {
+            JobId::Drop(_) => Some((ctx.root, &job.inputs)),
+            JobId::Folder(_) => None,
+        },
+        inputs_changed: AtomicBool::new(false),
     };
     let outcome = catch_unwind(AssertUnwindSafe(|| {
         if observer.cancelled() {
@@ -82,7 +96,10 @@ pub fn run(ctx: &Context, job: &QueuedJob) -> State {
             (State::Done, message, None)
         }
         Ok(Err(e)) if e.downcast_ref::<Cancelled>().is_some() => {
-            if ctx.shutdown.load(Ordering::Relaxed) {
+            if observer.inputs_changed.load(Ordering::Relaxed) {
+                let m = "the inputs changed while the job ran (still being written?); nothing was published, and the job runs again once they have settled";
+                (State::Queued, m.to_string(), None)
+            } else if ctx.shutdown.load(Ordering::Relaxed) {
                 let m =
                     "interrupted by the daemon's shutdown; it runs again when the daemon starts";
                 (State::Queued, m.to_string(), None)
@@ -328,18 +345,46 @@ struct JobObserver<'a> {
     status: &'a StatusFile,
     cancel: Option<PathBuf>,
     shutdown: &'a AtomicBool,
+    /// A drop's folder and the inputs it was started with: a writer slower than --settle may
+    /// still be appending, so a change (size or mtime) stops the job before it publishes.
+    drop_inputs: Option<(&'a Path, &'a Fingerprint)>,
+    /// Set when `drop_inputs` changed: the job is requeued, not failed or cancelled.
+    inputs_changed: AtomicBool,
 }
 
 fn stage_start(stage: &str) -> f64 {
     STAGE_PROGRESS
         .iter()
-        .find(|(s, _)| *s == stage)
-        .map_or(0.0, |(_, p)| *p)
+        .find(|(s, _, _)| *s == stage)
+        .map_or(0.0, |(_, p, _)| *p)
+}
+
+impl JobObserver<'_> {
+    /// Whether a drop's inputs differ from the fingerprint it was started with (two stats).
+    fn drop_changed(&self) -> bool {
+        let Some((root, inputs)) = self.drop_inputs else {
+            return false;
+        };
+        let changed = inputs
+            .iter()
+            .any(|f| match fs::metadata(root.join(&f.file)) {
+                Ok(m) => m.len() != f.size || super::scan::mtime_ns(&m) != f.mtime_ns,
+                Err(_) => true,
+            });
+        if changed {
+            self.inputs_changed.store(true, Ordering::Relaxed);
+        }
+        changed
+    }
 }
 
 impl Observer for JobObserver<'_> {
     fn stage(&self, stage: &'static str) {
-        self.status.progress(Some(stage), stage_start(stage));
+        let message = STAGE_PROGRESS
+            .iter()
+            .find(|(s, _, _)| *s == stage)
+            .map_or(stage, |(_, _, m)| *m);
+        self.status.stage(stage, stage_start(stage), message);
     }
 
     fn progress(&self, done: u64, total: u64) {
@@ -348,7 +393,12 @@ impl Observer for JobObserver<'_> {
         self.status.progress(None, lo + (hi - lo) * f);
     }
 
+    /// Also true once a drop's inputs changed: `pipeline::execute` asks this last, after
+    /// staging every output and before renaming them into place, so a changed input means
+    /// nothing is published.
     fn cancelled(&self) -> bool {
-        self.shutdown.load(Ordering::Relaxed) || self.cancel.as_deref().is_some_and(exists)
+        self.shutdown.load(Ordering::Relaxed)
+            || self.cancel.as_deref().is_some_and(exists)
+            || self.drop_changed()
     }
 }

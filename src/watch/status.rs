@@ -81,6 +81,15 @@ impl StatusFile {
         });
     }
 
+    /// A new stage: its name, where it starts on the progress scale, and what it does.
+    pub fn stage(&self, stage: &str, progress: f64, message: &str) {
+        self.update(|s| {
+            s.stage = stage.into();
+            s.progress = progress.clamp(0.0, 1.0);
+            s.message = message.into();
+        });
+    }
+
     pub fn queued(&self, message: &str) {
         self.update(|s| {
             s.state = State::Queued;

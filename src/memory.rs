@@ -1,0 +1,143 @@
+//! Will a run fit in memory? An estimate from the grid alone, checked before anything large is
+//! allocated, against what the machine and the process's address-space limit leave.
+//!
+//! Estimate, bytes, with P = dy·dz + dx·dz + dx·dy the pixels of the three image axes:
+//! - depth images D⁻ and D⁺, f32: 8 B per pixel; classifier range tables, i32 lo and hi: 8 B;
+//! - the voxel boundary mesh, T ≈ 2.8P triangles (each hit pixel's ray enters and leaves the
+//!   volume at least once, two triangles per face; 2.83P measured on the bundled bunny at
+//!   n = 1024 and 1500, up to 4P for a box filling the grid), and the simplifier's state on it:
+//!   250 B per start triangle at the peak (measured: 1.95 GB for 7.5e6 triangles at n = 1024,
+//!   4.04 GB for 16.1e6 at n = 1500), 30 B more with --keep-start-mesh (its GLB bytes are held
+//!   until the write);
+//! - BASE_BYTES for the program, its threads and the inputs.
+//!
+//! So about 716·P bytes, growing with n²: 4.1 GB estimated for the bunny at n = 1500, where
+//! 4.04 GB was measured (docs/benchmarks.md). An estimate, not a bound: a shape with more
+//! boundary per pixel can need more, and a run just under the limit may still fail late.
+
+use crate::error::UsageError;
+use crate::grid::{Grid, K_GLOBAL};
+
+/// Program, thread stacks, inputs and buffers outside the grid-sized structures.
+const BASE_BYTES: f64 = 32.0 * 1048576.0;
+/// Depth images and classifier ranges, per pixel.
+const IMAGE_BYTES_PER_PIXEL: f64 = 16.0;
+/// Start-mesh triangles per pixel.
+const TRIANGLES_PER_PIXEL: f64 = 2.8;
+/// Start mesh and simplifier at the peak, per start triangle.
+const BYTES_PER_TRIANGLE: f64 = 250.0;
+/// The start mesh's GLB bytes, per triangle, with --keep-start-mesh.
+const START_GLB_BYTES_PER_TRIANGLE: f64 = 30.0;
+
+/// Pixels of the three image axes.
+fn pixels(grid: &Grid) -> f64 {
+    let [x, y, z] = grid.dims.map(f64::from);
+    y * z + x * z + x * y
+}
+
+/// Estimated peak memory of a run on `grid`, bytes.
+pub fn estimate(grid: &Grid, keep_start_mesh: bool) -> f64 {
+    let pixels = pixels(grid);
+    let per_triangle = BYTES_PER_TRIANGLE
+        + if keep_start_mesh {
+            START_GLB_BYTES_PER_TRIANGLE
+        } else {
+            0.0
+        };
+    BASE_BYTES + pixels * (IMAGE_BYTES_PER_PIXEL + TRIANGLES_PER_PIXEL * per_triangle)
+}
+
+/// Memory this process can still get, bytes: the least of MemAvailable (/proc/meminfo) and
+/// RLIMIT_AS less the address space in use (/proc/self/statm). None where neither is known.
+pub fn available() -> Option<f64> {
+    let meminfo = std::fs::read_to_string("/proc/meminfo").ok().and_then(|s| {
+        s.lines()
+            .find_map(|l| l.strip_prefix("MemAvailable:"))
+            .and_then(|v| v.trim().trim_end_matches("kB").trim().parse::<f64>().ok())
+            .map(|kb| kb * 1024.0)
+    });
+    let mut lim = libc::rlimit {
+        rlim_cur: 0,
+        rlim_max: 0,
+    };
+    // SAFETY: getrlimit writes only the struct it is given.
+    let limited = unsafe { libc::getrlimit(libc::RLIMIT_AS, &mut lim) } == 0
+        && lim.rlim_cur != libc::RLIM_INFINITY;
+    let address_space = limited.then(|| {
+        // statm's first field: the address space in use, in pages.
+        let used = std::fs::read_to_string("/proc/self/statm")
+            .ok()
+            .and_then(|s| s.split_whitespace().next()?.parse::<f64>().ok())
+            .unwrap_or(0.0);
+        // SAFETY: sysconf has no preconditions.
+        let page = unsafe { libc::sysconf(libc::_SC_PAGESIZE) }.max(4096) as f64;
+        (lim.rlim_cur as f64 - used * page).max(0.0)
+    });
+    match (meminfo, address_space) {
+        (Some(a), Some(b)) => Some(a.min(b)),
+        (a, b) => a.or(b),
+    }
+}
+
+/// Refuse a run whose estimate exceeds `available` bytes, naming the estimate and the largest
+/// resolution (and the matching tolerance) that would fit. Memory grows with n², so the
+/// resolution scales by the square root of the ratio.
+pub fn check(grid: &Grid, keep_start_mesh: bool, available: Option<f64>) -> Result<(), UsageError> {
+    let need = estimate(grid, keep_start_mesh);
+    let Some(avail) = available else {
+        return Ok(());
+    };
+    if need <= avail {
+        return Ok(());
+    }
+    let n = grid.resolution();
+    let ratio = ((avail - BASE_BYTES).max(0.0) / (need - BASE_BYTES)).sqrt();
+    let fit = ((n as f64 * ratio).floor() as u32).max(1);
+    let gib = |b: f64| b / 1073741824.0;
+    Err(UsageError::new(format!(
+        "resolution {n} needs an estimated {:.1} GiB of memory (grid {}x{}x{}: depth images, classifier ranges, about {:.2e} start-mesh triangles and the simplifier), but only {:.1} GiB is available (MemAvailable, RLIMIT_AS); nothing was allocated: use --resolution {fit} or less, or --tolerance {:.3e} or more",
+        gib(need),
+        grid.dims[0],
+        grid.dims[1],
+        grid.dims[2],
+        TRIANGLES_PER_PIXEL * pixels(grid),
+        gib(avail),
+        K_GLOBAL * grid.h * n as f64 / fit as f64,
+    )))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn grid(n: u32) -> Grid {
+        Grid {
+            origin: [0.0; 3],
+            h: 1.0 / n as f64,
+            dims: [n, n, n],
+        }
+    }
+
+    #[test]
+    fn estimate_grows_with_n_squared_and_the_suggestion_fits() {
+        let (a, b) = (estimate(&grid(1024), false), estimate(&grid(2048), false));
+        assert!(
+            (b - BASE_BYTES) / (a - BASE_BYTES) > 3.99
+                && (b - BASE_BYTES) / (a - BASE_BYTES) < 4.01
+        );
+        assert!(estimate(&grid(1024), true) > a);
+        let avail = 4e9;
+        let e = check(&grid(12288), false, Some(avail)).unwrap_err();
+        let fit: u32 = e
+            .message
+            .split("--resolution ")
+            .nth(1)
+            .and_then(|s| s.split(' ').next())
+            .and_then(|s| s.parse().ok())
+            .expect("a resolution in the message");
+        assert!(estimate(&grid(fit), false) <= avail, "{}", e.message);
+        assert!(estimate(&grid(fit + 2), false) > avail, "{}", e.message);
+        assert!(check(&grid(256), false, Some(avail)).is_ok());
+        assert!(check(&grid(12288), false, None).is_ok());
+    }
+}

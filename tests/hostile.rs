@@ -1,0 +1,431 @@
+//! Issue 14, "hostile input": malformed inputs and options against the real binary. Each is
+//! refused with exit 2 and a message naming the file (and node or line) and the fix, writes no
+//! output and changes no input.
+
+use std::fs;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use std::time::{Duration, Instant};
+
+use base64::Engine;
+use serde_json::{json, Value};
+
+const BIN: &str = env!("CARGO_BIN_EXE_sweptvol");
+
+fn sweptvol(args: &[&str]) -> Output {
+    Command::new(BIN)
+        .args(args)
+        .env_remove("RUST_LOG")
+        .output()
+        .expect("run sweptvol")
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// A one-triangle glTF whose node "part" has the given transform properties.
+fn gltf_doc(node: Value) -> Value {
+    let mut bin = Vec::new();
+    for c in [0f32, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.5] {
+        bin.extend_from_slice(&c.to_le_bytes());
+    }
+    let mut n = json!({"name": "part", "mesh": 0});
+    n.as_object_mut()
+        .unwrap()
+        .extend(node.as_object().unwrap().clone());
+    json!({
+        "asset": {"version": "2.0"},
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": [n],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+        "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3",
+                        "min": [0.0, 0.0, 0.0], "max": [1.0, 1.0, 0.5]}],
+        "bufferViews": [{"buffer": 0, "byteLength": 36}],
+        "buffers": [{"byteLength": 36, "uri": format!("data:application/octet-stream;base64,{}",
+            base64::engine::general_purpose::STANDARD.encode(&bin))}],
+    })
+}
+
+fn write(dir: &Path, file: &str, bytes: impl AsRef<[u8]>) -> PathBuf {
+    let p = dir.join(file);
+    fs::write(&p, bytes).unwrap();
+    p
+}
+
+const CSV: &str = "frame,tx,ty,tz,qw,qx,qy,qz\n0,0,0,0,1,0,0,0\n1,0.1,0,0,1,0,0,0\n";
+
+fn run_args(g: &Path, t: &Path, out: &Path, extra: &[&str]) -> Vec<String> {
+    let mut v: Vec<String> = [
+        "run",
+        "--generator",
+        g.to_str().unwrap(),
+        "--trajectory",
+        t.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--backend",
+        "cpu",
+        "--quiet",
+    ]
+    .map(String::from)
+    .to_vec();
+    if !extra
+        .iter()
+        .any(|a| *a == "--resolution" || *a == "--tolerance")
+    {
+        v.extend(["--resolution".into(), "32".into()]);
+    }
+    v.extend(extra.iter().map(|s| s.to_string()));
+    v
+}
+
+/// Every file under `dir` with its bytes.
+fn snapshot(dir: &Path) -> Vec<(PathBuf, Vec<u8>)> {
+    let mut out: Vec<(PathBuf, Vec<u8>)> = fs::read_dir(dir)
+        .unwrap()
+        .flatten()
+        .filter(|e| e.path().is_file())
+        .map(|e| (e.path(), fs::read(e.path()).unwrap()))
+        .collect();
+    out.sort();
+    out
+}
+
+/// Exit 2, every needle and a fix in stderr, no output folder, inputs unchanged.
+fn expect_refused(dir: &Path, args: &[String], needles: &[&str]) -> String {
+    let before = snapshot(dir);
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let o = sweptvol(&args);
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
+    for n in needles {
+        assert!(err.contains(n), "stderr lacks {n:?}: {err}");
+    }
+    assert!(!dir.join("results").exists(), "outputs written: {err}");
+    assert_eq!(before, snapshot(dir), "an input changed: {err}");
+    err
+}
+
+#[test]
+fn non_affine_and_singular_node_transforms_are_refused_by_run_and_verify() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let t = write(d, "part.csv", CSV);
+    let ok = write(d, "ok.gltf", gltf_doc(json!({})).to_string());
+    let identity = [
+        1.0, 0., 0., 0., 0., 1., 0., 0., 0., 0., 1., 0., 0., 0., 0., 1.,
+    ];
+    // Column-major: elements 3, 7, 11, 15 are the last row.
+    let cases: [(&str, usize, f64, &str); 3] = [
+        ("w2.gltf", 15, 2.0, "0 0 0 2"),
+        ("w0.gltf", 15, 0.0, "0 0 0 0"),
+        ("projective.gltf", 11, -1.0, "0 0 -1 1"),
+    ];
+    for (file, k, x, row) in cases {
+        let mut m = identity;
+        m[k] = x;
+        let g = write(d, file, gltf_doc(json!({"matrix": m})).to_string());
+        let args = run_args(&g, &t, &d.join("results"), &[]);
+        expect_refused(
+            d,
+            &args,
+            &[file, "nodes[0]", "\"part\"", "not affine", row, "fix:"],
+        );
+    }
+    for (file, node) in [
+        ("zero-scale.gltf", json!({"scale": [1.0, 0.0, 1.0]})),
+        (
+            "flat-matrix.gltf",
+            json!({"matrix": [1., 0., 0., 0., 2., 0., 0., 0., 0., 0., 1., 0., 0., 0., 0., 1.]}),
+        ),
+    ] {
+        let g = write(d, file, gltf_doc(node).to_string());
+        let args = run_args(&g, &t, &d.join("results"), &[]);
+        expect_refused(d, &args, &[file, "nodes[0]", "singular", "fix:"]);
+        // verify reads the same inputs on its own path: refused too (it used to panic).
+        let args: Vec<String> = ["verify", "--generator", g.to_str().unwrap(), "--trajectory"]
+            .iter()
+            .map(|s| s.to_string())
+            .chain([
+                t.to_str().unwrap().into(),
+                "--mesh".into(),
+                ok.to_str().unwrap().into(),
+            ])
+            .collect();
+        expect_refused(d, &args, &[file, "nodes[0]", "singular", "fix:"]);
+    }
+}
+
+#[test]
+fn an_output_may_never_replace_an_input() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let out = d.join("out");
+    fs::create_dir(&out).unwrap();
+    // A generator named like the mesh output, in the output folder.
+    let g = write(&out, "ok.swept.glb", gltf_doc(json!({})).to_string());
+    let t = write(d, "ok.csv", CSV);
+    let before = fs::read(&g).unwrap();
+    let o = sweptvol(
+        &run_args(&g, &t, &out, &["--overwrite"])
+            .iter()
+            .map(String::as_str)
+            .collect::<Vec<_>>(),
+    );
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("would replace the input") && err.contains("ok.swept.glb"),
+        "{err}"
+    );
+    assert_eq!(fs::read(&g).unwrap(), before);
+    assert_eq!(
+        fs::read_dir(&out).unwrap().count(),
+        1,
+        "outputs were written"
+    );
+
+    // A trajectory named like the report, with and without --overwrite.
+    let g = write(d, "part.gltf", gltf_doc(json!({})).to_string());
+    let t = write(d, "a.report.json", CSV);
+    for extra in [&["--name", "a"][..], &["--name", "a", "--overwrite"]] {
+        let args = run_args(&g, &t, d, extra);
+        expect_refused(d, &args, &["would replace the input", "a.report.json"]);
+    }
+    // A hard link to the trajectory under an output name.
+    let linked = d.join("linked");
+    fs::create_dir(&linked).unwrap();
+    fs::hard_link(&t, linked.join("b.report.json")).unwrap();
+    let args = run_args(&g, &t, &linked, &["--name", "b", "--overwrite"]);
+    expect_refused(
+        d,
+        &args,
+        &["would replace the input", "hard or symbolic link"],
+    );
+}
+
+#[test]
+fn numbers_beyond_f32_precision_are_refused_before_the_sweep_by_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let g = write(d, "part.gltf", gltf_doc(json!({})).to_string());
+    for (file, row, needle) in [
+        ("far.csv", "2,1e300,0,0,1,0,0,0", "1e300"),
+        // Motion of 1e-3 around 1e6: the voxel is tiny against the coordinates.
+        ("offset.csv", "2,1000000.001,0,0,1,0,0,0", "1% of a voxel"),
+    ] {
+        let lead = if file == "offset.csv" {
+            "1000000,0,0"
+        } else {
+            "0,0,0"
+        };
+        let text = format!("frame,tx,ty,tz,qw,qx,qy,qz\n# far\n1,{lead},1,0,0,0\n{row}\n");
+        let t = write(d, file, text);
+        let started = Instant::now();
+        let args = run_args(&g, &t, &d.join("results"), &["--resolution", "256"]);
+        let err = expect_refused(d, &args, &[&format!("{file}:4"), needle, "fix:"]);
+        assert!(
+            started.elapsed() < Duration::from_secs(20),
+            "refused only after the sweep"
+        );
+        // Never a number in 300 digits.
+        let longest_digits = err
+            .split(|c: char| !c.is_ascii_digit())
+            .map(str::len)
+            .max()
+            .unwrap_or(0);
+        assert!(longest_digits < 20, "{err}");
+    }
+}
+
+#[test]
+fn a_run_that_cannot_fit_in_memory_is_refused_up_front() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let g = write(d, "part.gltf", gltf_doc(json!({})).to_string());
+    let t = write(d, "part.csv", CSV);
+    let args = run_args(&g, &t, &d.join("results"), &["--resolution", "12288"]);
+    let quoted: Vec<String> = args.iter().map(|a| format!("'{a}'")).collect();
+    let started = Instant::now();
+    let o = Command::new("sh")
+        .arg("-c")
+        .arg(format!(
+            "ulimit -v 4000000 && exec {BIN} {}",
+            quoted.join(" ")
+        ))
+        .output()
+        .unwrap();
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("GiB") && err.contains("use --resolution"),
+        "{err}"
+    );
+    assert!(
+        started.elapsed() < Duration::from_secs(10),
+        "not refused up front"
+    );
+    assert!(!d.join("results").exists());
+}
+
+#[test]
+fn verify_stops_at_the_first_proven_failure_unless_asked_for_all() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let g = write(d, "part.gltf", gltf_doc(json!({})).to_string());
+    // 200 poses along x; the tetrahedron below holds those with tx < 0.5 (x + y + z < 2).
+    let mut text = String::from("frame,tx,ty,tz,qw,qx,qy,qz\n");
+    for i in 0..200 {
+        text += &format!("{i},{},0,0,1,0,0,0\n", i as f64 * 0.1);
+    }
+    let t = write(d, "part.csv", text);
+    let mut bin = Vec::new();
+    for c in [
+        -1f32, -1.0, -1.0, 4.0, -1.0, -1.0, -1.0, 4.0, -1.0, -1.0, -1.0, 4.0,
+    ] {
+        bin.extend_from_slice(&c.to_le_bytes());
+    }
+    for i in [0u16, 2, 1, 0, 1, 3, 0, 3, 2, 1, 2, 3] {
+        bin.extend_from_slice(&i.to_le_bytes());
+    }
+    let mesh = json!({
+        "asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}],
+        "nodes": [{"mesh": 0}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}],
+        "accessors": [
+            {"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3"},
+            {"bufferView": 1, "componentType": 5123, "count": 12, "type": "SCALAR"}],
+        "bufferViews": [{"buffer": 0, "byteLength": 48}, {"buffer": 0, "byteOffset": 48, "byteLength": 24}],
+        "buffers": [{"byteLength": 72, "uri": format!("data:application/octet-stream;base64,{}",
+            base64::engine::general_purpose::STANDARD.encode(&bin))}],
+    });
+    let m = write(d, "far.gltf", mesh.to_string());
+    let base = [
+        "verify",
+        "--generator",
+        g.to_str().unwrap(),
+        "--trajectory",
+        t.to_str().unwrap(),
+        "--mesh",
+        m.to_str().unwrap(),
+        "--json",
+    ];
+    let report = |extra: &[&str]| -> Value {
+        let o = sweptvol(&[&base[..], extra].concat());
+        assert_eq!(o.status.code(), Some(3), "{}", stderr(&o));
+        serde_json::from_slice(&o.stdout).unwrap()
+    };
+    let all = report(&["--all-failures"]);
+    let c = &all["containment"];
+    assert_eq!(c["stopped_early"], false);
+    assert_eq!(c["posed_triangles"], 200, "{c}");
+    let outside = c["outside"].as_u64().unwrap();
+    assert!((150..200).contains(&outside), "{c}");
+    let fast = report(&[]);
+    let c = &fast["containment"];
+    assert_eq!(c["stopped_early"], true, "{c}");
+    let (found, checked) = (
+        c["outside"].as_u64().unwrap(),
+        c["ball_tests"].as_u64().unwrap(),
+    );
+    assert!(found >= 1 && found < outside, "{c}");
+    assert!(
+        checked < all["containment"]["ball_tests"].as_u64().unwrap(),
+        "{c}"
+    );
+    let failures = fast["failures"].to_string();
+    assert!(failures.contains("--all-failures"), "{failures}");
+}
+
+#[test]
+fn bad_option_values_exit_2_and_bad_files_say_what_they_are() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let g = write(d, "part.gltf", gltf_doc(json!({})).to_string());
+    let t = write(d, "part.csv", CSV);
+    let out = d.join("results");
+    for (extra, needle) in [
+        (&["--tolerance", "-1"][..], "tolerance -1"),
+        (&["--resolution", "4"], "resolution 4"),
+        (&["--delta", "-0.5"], "δ"),
+    ] {
+        let args = run_args(&g, &t, &out, extra);
+        let err = expect_refused(d, &args, &[]);
+        assert!(err.contains(needle) || extra[0] == "--delta", "{err}");
+    }
+    // A file that is no glTF at all: named as such, with its first bytes.
+    let zip = write(d, "part.glb", b"PK\x03\x04zipped");
+    let args = run_args(&zip, &t, &out, &[]);
+    expect_refused(
+        d,
+        &args,
+        &["part.glb", "not a glTF or GLB file", "50 4b 03 04", "fix:"],
+    );
+    // glTF 1.0.
+    let mut doc = gltf_doc(json!({}));
+    doc["asset"]["version"] = json!("1.0");
+    let old = write(d, "old.gltf", doc.to_string());
+    let args = run_args(&old, &t, &out, &[]);
+    expect_refused(d, &args, &["old.gltf", "asset.version", "glTF 2.0"]);
+    // verify --spacing absurdly fine: refused with the estimate.
+    let args: Vec<String> = [
+        "verify",
+        "--generator",
+        g.to_str().unwrap(),
+        "--trajectory",
+        t.to_str().unwrap(),
+        "--mesh",
+        g.to_str().unwrap(),
+        "--spacing",
+        "1e-9",
+    ]
+    .map(String::from)
+    .to_vec();
+    expect_refused(d, &args, &["--spacing", "samples", "use --spacing"]);
+}
+
+#[test]
+fn a_quiet_successful_auto_run_prints_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let g = write(d, "part.gltf", gltf_doc(json!({})).to_string());
+    let t = write(d, "part.csv", CSV);
+    let out = d.join("results");
+    let mut args = run_args(&g, &t, &out, &[]);
+    let i = args.iter().position(|a| a == "cpu").unwrap();
+    args[i] = "auto".into();
+    let o = Command::new(BIN)
+        .args(&args)
+        .env_remove("RUST_LOG")
+        .env_remove("XDG_RUNTIME_DIR")
+        .env_remove("NODEVICE_SELECT")
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(stderr(&o), "", "printed on a quiet success");
+    assert!(o.stdout.is_empty());
+}
+
+#[test]
+fn the_daemon_log_has_no_colour_codes_when_not_a_terminal() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let job = d.join("bad");
+    fs::create_dir(&job).unwrap();
+    write(&job, "generator.glb", b"not a glb");
+    write(&job, "trajectory.csv", CSV);
+    let o = sweptvol(&["watch", d.to_str().unwrap(), "--once", "--backend", "cpu"]);
+    let err = stderr(&o);
+    assert!(o.status.success(), "{err}");
+    assert!(err.contains("failed"), "{err}");
+    assert!(!err.contains('\u{1b}'), "ANSI codes in the log: {err:?}");
+    let status: Value =
+        serde_json::from_slice(&fs::read(job.join("status.json")).unwrap()).unwrap();
+    assert_eq!(status["state"], "failed");
+    assert!(status["message"]
+        .as_str()
+        .unwrap()
+        .contains("not a glTF or GLB file"));
+}
