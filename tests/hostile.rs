@@ -429,3 +429,50 @@ fn the_daemon_log_has_no_colour_codes_when_not_a_terminal() {
         .unwrap()
         .contains("not a glTF or GLB file"));
 }
+
+/// Damaged files through the real binary: a truncated .glb, a .glb whose chunk length runs past
+/// its end, and a .gltf whose triangle names a vertex it does not have.
+#[test]
+fn truncated_corrupted_and_out_of_range_generators_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let t = write(dir.path(), "part.csv", CSV);
+    let out = dir.path().join("results");
+    let bunny = fs::read(concat!(env!("CARGO_MANIFEST_DIR"), "/examples/bunny.glb")).unwrap();
+
+    let half = write(dir.path(), "half.glb", &bunny[..bunny.len() / 2]);
+    expect_refused(dir.path(), &run_args(&half, &t, &out, &[]), &["half.glb"]);
+
+    let mut long = bunny.clone();
+    let json_len = u32::from_le_bytes(long[12..16].try_into().unwrap());
+    long[12..16].copy_from_slice(&(json_len + 1_000_000).to_le_bytes());
+    let long = write(dir.path(), "long.glb", &long);
+    expect_refused(dir.path(), &run_args(&long, &t, &out, &[]), &["long.glb"]);
+
+    // Indices [0, 1, 99] into three vertices.
+    let mut doc = gltf_doc(json!({}));
+    let mut idx = Vec::new();
+    for i in [0u32, 1, 99] {
+        idx.extend_from_slice(&i.to_le_bytes());
+    }
+    doc["accessors"]
+        .as_array_mut()
+        .unwrap()
+        .push(json!({"bufferView": 1, "componentType": 5125, "count": 3, "type": "SCALAR"}));
+    doc["bufferViews"]
+        .as_array_mut()
+        .unwrap()
+        .push(json!({"buffer": 1, "byteLength": 12}));
+    doc["buffers"]
+        .as_array_mut()
+        .unwrap()
+        .push(json!({"byteLength": 12,
+        "uri": format!("data:application/octet-stream;base64,{}",
+            base64::engine::general_purpose::STANDARD.encode(&idx))}));
+    doc["meshes"][0]["primitives"][0]["indices"] = json!(1);
+    let bad = write(dir.path(), "index.gltf", serde_json::to_vec(&doc).unwrap());
+    expect_refused(
+        dir.path(),
+        &run_args(&bad, &t, &out, &[]),
+        &["index.gltf", "99"],
+    );
+}

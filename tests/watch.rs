@@ -821,3 +821,65 @@ fn control_folder_and_status_links_never_lead_outside() {
     assert!(job.join("swept.glb").exists(), "the job ran: {log}");
     assert_eq!(std::fs::read(&secret).unwrap(), br#"{"state": "done"}"#);
 }
+
+/// job.json with absurd values (not unknown keys): each job fails with a message that names
+/// job.json and the fix, writes no output, and the good job after them still completes.
+#[test]
+fn absurd_job_json_values_fail_their_job_by_name() {
+    let (_tmp, dir) = watched();
+    let g = tet_glb();
+    let t = csv(2);
+    let cases: [(&str, &[u8], &str); 7] = [
+        (
+            "a-huge-resolution",
+            br#"{"resolution": 1000000000}"#,
+            "resolution",
+        ),
+        ("b-zero-resolution", br#"{"resolution": 0}"#, "resolution"),
+        (
+            "c-negative-resolution",
+            br#"{"resolution": -3}"#,
+            "resolution",
+        ),
+        ("d-negative-tolerance", br#"{"tolerance": -1}"#, "tolerance"),
+        (
+            "e-nan-tolerance",
+            br#"{"tolerance": "NaN"}"#,
+            "expected f64",
+        ),
+        ("f-unknown-backend", br#"{"backend": "quantum"}"#, "backend"),
+        ("g-bad-format", br#"{"also": ["step"]}"#, "step"),
+    ];
+    let jobs: Vec<(PathBuf, &str)> = cases
+        .iter()
+        .map(|(name, json, needle)| {
+            let job = submit(
+                &dir,
+                name,
+                &[
+                    ("generator.glb", &g),
+                    ("trajectory.csv", t.as_bytes()),
+                    ("job.json", json),
+                ],
+            );
+            (job, *needle)
+        })
+        .collect();
+    let good = small_job(&dir, "z-good");
+    let before = input_files(&dir);
+    let (code, log) = once(&dir, &[]);
+    assert!(code.success(), "{log}");
+    for (job, needle) in &jobs {
+        let s = status(&job.join("status.json")).unwrap();
+        assert_eq!(s["state"], "failed", "{}: {s:#}", job.display());
+        let m = s["message"].as_str().unwrap();
+        assert!(
+            m.contains(needle) && m.contains("fix") && (m.contains("job.json") || m.contains("\"")),
+            "{}: {m}",
+            job.display()
+        );
+        assert_eq!(check_visible_outputs(job, ""), 0, "{}", job.display());
+    }
+    assert_eq!(state(&good.join("status.json")), "done", "{log}");
+    assert_eq!(input_files(&dir), before);
+}

@@ -10,7 +10,7 @@ use std::sync::Arc;
 
 use super::protocol::{self, ErrorInfo, Fingerprint, JobId, JobOptions, State};
 use super::status::StatusFile;
-use crate::error::InputError;
+use crate::error::{InputError, UsageError};
 use crate::grid::Accuracy;
 use crate::pipeline::{self, Backend, BackendChoice, Report};
 use crate::sweep::{Cancelled, Observer};
@@ -241,8 +241,26 @@ fn execute(ctx: &Context, job: &QueuedJob, observer: &JobObserver) -> anyhow::Re
     };
     let opts = options.run_options(generator, trajectory, &job.id, root, ctx.default_accuracy);
     remove_stale_temporaries(&opts, &job.id.status_path(root))?;
-    let prepared = pipeline::prepare(&opts)?;
+    let prepared = pipeline::prepare(&opts).map_err(|e| in_job_terms(e, job_json.as_deref()))?;
     pipeline::execute(&prepared, backend, observer)
+}
+
+/// A bad option value, worded for where it came from: job.json's keys, or the daemon's flags
+/// for a drop (which has no job.json).
+fn in_job_terms(e: anyhow::Error, job_json: Option<&Path>) -> anyhow::Error {
+    match (e.downcast::<UsageError>(), job_json) {
+        (Ok(usage), Some(path)) => InputError::new(
+            path,
+            usage.message,
+            "change that value in job.json (docs/exchange-protocol.md lists the keys and their ranges)",
+        )
+        .into(),
+        (Ok(usage), None) => anyhow::Error::new(UsageError::new(format!(
+            "{} (this drop has no job.json, so the daemon's --resolution or --tolerance applies: restart it with another value, or submit a job folder with a job.json)",
+            usage.message
+        ))),
+        (Err(e), _) => e,
+    }
 }
 
 fn exists(path: &Path) -> bool {
