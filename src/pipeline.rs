@@ -312,10 +312,11 @@ pub fn prepare(opts: &RunOptions) -> anyhow::Result<Prepared> {
     refuse_outputs_on_inputs(opts, &outputs)?;
     if !opts.overwrite {
         if let Some(existing) = outputs.iter().find(|p| p.exists()) {
-            bail!(
+            return Err(crate::error::UsageError::new(format!(
                 "{} already exists; pass --overwrite to replace the outputs, or choose another --out or --name",
                 existing.display()
-            );
+            ))
+            .into());
         }
     }
     let generator = gltf_in::read_generator(&opts.generator)?;

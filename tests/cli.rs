@@ -117,7 +117,7 @@ fn good_run_writes_all_outputs_and_never_overwrites_silently() {
     // A second run refuses to overwrite and leaves the files as they were.
     let before = fs::read(out.join("part.depth-zmin.exr")).unwrap();
     let o = sweptvol(&run_args(gs, ts, os));
-    assert!(!o.status.success());
+    assert_eq!(o.status.code(), Some(2), "an existing output is a usage error");
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(
         err.contains("already exists") && err.contains("--overwrite"),
