@@ -237,11 +237,57 @@ fn write_depth_exr_to(
     let size = (image.width as usize, image.height as usize);
     let layer = Layer::new(size, attributes, Encoding::SMALL_LOSSLESS, channels);
 
-    let file = open()?;
+    let mut bytes = std::io::Cursor::new(Vec::new());
     Image::from_layer(layer)
         .write()
-        .to_buffered(std::io::BufWriter::new(file))
+        .to_buffered(&mut bytes)
+        .with_context(|| format!("cannot encode {}", path.display()))?;
+    let mut bytes = bytes.into_inner();
+    sort_header_attributes(&mut bytes)?;
+    let mut file = open()?;
+    std::io::Write::write_all(&mut file, &bytes)
         .with_context(|| format!("cannot write {}", path.display()))
+}
+
+/// The exr crate writes custom attributes in `HashMap` order, which differs from map to map:
+/// sort the header's attributes by name (as OpenEXR itself writes them) so that equal images give
+/// equal files. The header keeps its length, so the chunk offsets after it stay valid.
+/// Layout (single-part file): magic and version (8 bytes), then per attribute its name and type
+/// name (NUL-terminated), an i32 size and the value, and a NUL after the last one.
+fn sort_header_attributes(bytes: &mut [u8]) -> anyhow::Result<()> {
+    let nul_after = |from: usize| -> anyhow::Result<usize> {
+        let rest = bytes.get(from..).context("EXR header ends early")?;
+        Ok(from
+            + rest
+                .iter()
+                .position(|&b| b == 0)
+                .context("EXR header ends early")?)
+    };
+    let mut attributes: Vec<(&[u8], &[u8])> = Vec::new();
+    let mut at = 8;
+    loop {
+        let name_end = nul_after(at)?;
+        if name_end == at {
+            break;
+        }
+        let type_end = nul_after(name_end + 1)?;
+        let size = bytes
+            .get(type_end + 1..type_end + 5)
+            .context("EXR header ends early")?;
+        let size = i32::from_le_bytes(size.try_into()?);
+        ensure!(size >= 0, "negative EXR attribute size");
+        let end = type_end + 5 + size as usize;
+        ensure!(end <= bytes.len(), "EXR header ends early");
+        attributes.push((&bytes[at..name_end], &bytes[at..end]));
+        at = end;
+    }
+    attributes.sort();
+    let sorted: Vec<u8> = attributes
+        .iter()
+        .flat_map(|(_, a)| a.iter().copied())
+        .collect();
+    bytes[8..8 + sorted.len()].copy_from_slice(&sorted);
+    Ok(())
 }
 
 /// Stage the six images for `dir` under temporary names in `staged` (renamed into place by
@@ -873,6 +919,31 @@ mod tests {
         bad.images[2].min.pop();
         assert!(write_depth_exr(&dir.path().join("bad.exr"), &bad, 2, Side::Min, &EXTRA).is_err());
         assert!(!dir.path().join("bad.exr").exists());
+    }
+
+    /// Equal images give equal files: the exr crate's attribute order (a `HashMap`'s) differs
+    /// from map to map, and the header is sorted by name after it.
+    #[test]
+    fn equal_images_give_byte_identical_files() {
+        let dir = tempfile::tempdir().unwrap();
+        let images = sample_images(grid());
+        let files: Vec<Vec<u8>> = (0..6)
+            .map(|i| {
+                let path = dir.path().join(format!("{i}.exr"));
+                write_depth_exr(&path, &images, 1, Side::Max, &EXTRA).unwrap();
+                read_depth_exr(&path).unwrap();
+                fs::read(&path).unwrap()
+            })
+            .collect();
+        assert!(files.iter().all(|f| *f == files[0]), "files differ");
+        let find = |name: &[u8]| {
+            files[0]
+                .windows(name.len())
+                .position(|w| w == name)
+                .unwrap()
+        };
+        assert!(find(b"channels\0") < find(b"sweptvol:axis\0"));
+        assert!(find(b"sweptvol:axis\0") < find(b"sweptvol:voxelSize\0"));
     }
 
     /// A damaged data window (here claiming 808 million pixels a side, as a fuzzed file did) is
