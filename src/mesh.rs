@@ -105,11 +105,17 @@ impl Mesh {
                 fill[v] += 1;
             }
         }
-        let one_fan = |fan: &[(u32, u32)]| {
+        // Corners sorted by `previous`, so each step of the walk is a binary search: a vertex
+        // with a huge fan costs O(k log k), not O(k²). A repeated `previous` is no fan.
+        let one_fan = |fan: &mut [(u32, u32)]| {
+            fan.sort_unstable();
+            if fan.windows(2).any(|w| w[0].0 == w[1].0) {
+                return false;
+            }
             let mut at = 0;
             for step in 1..=fan.len() {
                 let next = fan[at].1;
-                let Some(n) = fan.iter().position(|c| c.0 == next) else {
+                let Ok(n) = fan.binary_search_by_key(&next, |c| c.0) else {
                     return false;
                 };
                 at = n;
@@ -121,7 +127,7 @@ impl Mesh {
         };
         let bad_vertices = (0..self.positions.len())
             .filter(|&v| {
-                let fan = &corners[start[v]..start[v + 1]];
+                let fan = &mut corners[start[v]..start[v + 1]];
                 !fan.is_empty() && !one_fan(fan)
             })
             .count();

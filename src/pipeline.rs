@@ -16,7 +16,7 @@ use crate::io::mesh_formats::MeshFormat;
 use crate::io::{atomic, gltf_in, gltf_out, trajectory};
 use crate::job::{self, PartRange, SweepInput};
 use crate::manifold::Joined;
-use crate::mesh::ManifoldDefects;
+use crate::mesh::{ManifoldDefects, Mesh};
 use crate::simplify::{simplify_until, SimplifyOptions, SimplifyStats};
 use crate::sweep::{cpu, gpu::Gpu, Cancelled, Observer};
 use crate::voxel::Classifier;
@@ -165,7 +165,7 @@ pub struct MeshReport {
     /// Every point of the mesh is at least this far outside the swept volume:
     /// δ - √3h/2 - ε - output rounding.
     pub clearance: f64,
-    /// Largest change of a coordinate when written as f32.
+    /// Farthest a vertex moves when written as f32 (Euclidean, world units).
     pub output_rounding: f64,
 }
 
@@ -460,7 +460,17 @@ pub fn execute(
     };
     let (mesh, simplify_stats) =
         simplify_until(start, &classifier, band, &|| observer.cancelled()).ok_or(Cancelled)?;
-    let manifold = mesh.manifold_defects();
+    // Checked on the f32 world positions the files hold: rounding could merge vertices.
+    let (written, output_rounding) = gltf_out::world_positions(&mesh, &input.grid);
+    let manifold = Mesh {
+        positions: written
+            .iter()
+            .map(|p| glam::Vec3::from(*p).as_dvec3())
+            .collect(),
+        triangles: mesh.triangles.clone(),
+    }
+    .manifold_defects();
+    drop(written);
     let mut warnings = job.warnings.clone();
     if !manifold.is_manifold() {
         // An invariant of the simplifier on a manifold start mesh: report it, never hide it.
@@ -468,7 +478,6 @@ pub fn execute(
         tracing::warn!("{w}");
         warnings.push(w);
     }
-    let (_, output_rounding) = gltf_out::world_positions(&mesh, &input.grid);
     // The mesh keeps a clearance of δ - √3h/2 - ε (about 0.71h at the defaults) from the swept
     // volume; f32 output must not spend a noticeable part of it.
     if output_rounding > 0.01 * input.grid.h {

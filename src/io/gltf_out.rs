@@ -10,7 +10,8 @@ use crate::grid::Grid;
 use crate::io::atomic;
 use crate::mesh::Mesh;
 
-/// World positions as f32 and the largest rounding error that conversion made (world units).
+/// World positions as f32 and the farthest that conversion moved a vertex (Euclidean distance,
+/// world units).
 pub fn world_positions(mesh: &Mesh, grid: &Grid) -> (Vec<[f32; 3]>, f64) {
     let mut worst: f64 = 0.0;
     let out = mesh
@@ -19,9 +20,7 @@ pub fn world_positions(mesh: &Mesh, grid: &Grid) -> (Vec<[f32; 3]>, f64) {
         .map(|p| {
             let w = grid.to_world(*p);
             let f = [w.x as f32, w.y as f32, w.z as f32];
-            for c in 0..3 {
-                worst = worst.max((f[c] as f64 - w[c]).abs());
-            }
+            worst = worst.max((glam::Vec3::from(f).as_dvec3() - w).length());
             f
         })
         .collect();

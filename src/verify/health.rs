@@ -28,7 +28,8 @@ pub struct Health {
     /// Edges whose two triangles run along them in the same direction.
     pub misoriented_edges: u64,
     /// Vertices (welded by position) whose triangles are not one closed fan: two cones meeting
-    /// at a point, or two vertices of the file at one place.
+    /// at a point, or two vertices of the file at one place (on an open mesh, every boundary
+    /// vertex too).
     pub non_manifold_vertices: u64,
     /// Every edge is used as often in each direction: the surface bounds a solid and the
     /// winding number is an integer off it. What the containment proof needs.
@@ -193,7 +194,9 @@ pub fn check(tris: &[[DVec3; 3]], bvh: &Bvh) -> (Health, Vec<(DVec3, DVec3)>) {
 
 /// Vertices whose corners do not chain into one closed fan: at vertex v each triangle (v, a, b)
 /// (in its winding order) leads to the triangle whose corner at v starts at b; one fan when that
-/// walk from any corner visits all of v's corners and returns.
+/// walk from any corner visits all of v's corners and returns. On an open mesh every boundary
+/// vertex counts (its fan does not close). Corners are sorted by their first vertex, so a vertex
+/// with k triangles costs O(k log k) (hostile files may have one vertex in every triangle).
 fn count_pinched_vertices(welded: &[[u32; 3]], vertices: usize) -> u64 {
     let mut corners: Vec<Vec<(u32, u32)>> = vec![Vec::new(); vertices];
     for t in welded {
@@ -204,23 +207,27 @@ fn count_pinched_vertices(welded: &[[u32; 3]], vertices: usize) -> u64 {
             corners[t[k] as usize].push((t[(k + 1) % 3], t[(k + 2) % 3]));
         }
     }
+    for c in corners.iter_mut() {
+        c.sort_unstable();
+    }
     corners
         .iter()
         .filter(|c| !c.is_empty())
         .filter(|c| {
+            if c.windows(2).any(|w| w[0].0 == w[1].0) {
+                return true;
+            }
             let mut at = 0usize;
-            let mut steps = 0usize;
-            loop {
-                let to = c[at].1;
-                match c.iter().position(|&(from, _)| from == to) {
-                    Some(n) => at = n,
-                    None => return true,
+            for step in 1..=c.len() {
+                match c.binary_search_by_key(&c[at].1, |&(from, _)| from) {
+                    Ok(n) => at = n,
+                    Err(_) => return true,
                 }
-                steps += 1;
-                if at == 0 || steps > c.len() {
-                    return !(at == 0 && steps == c.len());
+                if at == 0 {
+                    return step != c.len();
                 }
             }
+            true
         })
         .count() as u64
 }
