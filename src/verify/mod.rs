@@ -192,7 +192,7 @@ pub fn verify(opts: &VerifyOptions, progress: &dyn Progress) -> anyhow::Result<R
         .unwrap_or(diagonal * DEFAULT_SPACING_FRACTION)
         .max(f64::MIN_POSITIVE);
     if let Some(s) = opts.spacing {
-        check_spacing(s, &mesh, &parts)?;
+        check_spacing(s, &mesh)?;
     }
     let scale = lo.abs().max(hi.abs()).max_element().max(diagonal);
     let mesh_bvh = Bvh::build(mesh.clone(), 4);
@@ -362,31 +362,20 @@ pub fn verify(opts: &VerifyOptions, progress: &dyn Progress) -> anyhow::Result<R
     })
 }
 
-/// Refuse a `--spacing` whose samples could not be computed in a sane time: covering a
-/// triangle of area A by pieces of covering radius s takes at least A / ((3√3/4)·s²) pieces
-/// (an equilateral piece with circumradius s has the largest area), over the mesh (deviation)
-/// and every posed generator triangle (containment, bounded by its posed area).
-fn check_spacing(s: f64, mesh: &[[DVec3; 3]], parts: &[PosedPart]) -> Result<(), UsageError> {
+/// Refuse a `--spacing` whose samples could not be computed in a sane time. The deviation stage
+/// covers the whole mesh with pieces of covering radius s, and a triangle of area A takes at
+/// least A / ((3√3/4)·s²) of them (an equilateral piece with circumradius s has the largest
+/// area): a lower bound on the work, so nothing that could finish is refused. (Containment
+/// refines only near the surface, so the posed generator's area says nothing certain.)
+fn check_spacing(s: f64, mesh: &[[DVec3; 3]]) -> Result<(), UsageError> {
     let area = |t: &[DVec3; 3]| (t[1] - t[0]).cross(t[2] - t[0]).length() / 2.0;
     let mesh_area: f64 = mesh.iter().map(area).sum();
-    let posed_area: f64 = parts
-        .iter()
-        .map(|p| {
-            let local: f64 = p.bvh.tris.iter().map(area).sum();
-            // A pose scales areas by at most σ_max².
-            p.poses
-                .iter()
-                .map(|q| q.sigma_max * q.sigma_max)
-                .sum::<f64>()
-                * local
-        })
-        .sum();
     let piece = 3f64.sqrt() * 3.0 / 4.0 * s * s;
-    let samples = (mesh_area + posed_area) / piece;
+    let samples = mesh_area / piece;
     if samples > MAX_SAMPLES {
-        let fits = ((mesh_area + posed_area) / (MAX_SAMPLES * 3f64.sqrt() * 3.0 / 4.0)).sqrt();
+        let fits = (mesh_area / (MAX_SAMPLES * 3f64.sqrt() * 3.0 / 4.0)).sqrt();
         return Err(UsageError::new(format!(
-            "--spacing {s:e} would need up to {samples:.1e} samples (mesh area {mesh_area:.3e}, posed generator area {posed_area:.3e}), more than the limit of {MAX_SAMPLES:.0e}; use --spacing {fits:.3e} or more, or leave it out (default: mesh diagonal / 2000)"
+            "--spacing {s:e} would need at least {samples:.1e} samples over the mesh (area {mesh_area:.3e}), more than the limit of {MAX_SAMPLES:.0e}; use --spacing {fits:.3e} or more, or leave it out (default: mesh diagonal / 2000)"
         )));
     }
     Ok(())
