@@ -473,7 +473,7 @@ fn collect_parts(
                         "the node's world transform is singular (its 3x3 part has determinant {}): a zero scale or a degenerate matrix flattens the mesh",
                         crate::error::num(det)
                     ),
-                    "give the node and its parents non-zero scales and invertible matrices, then re-export",
+                    "give the node and its parents non-zero scales and invertible matrices, then re-export (an object hidden by scaling it to zero must be deleted or left out of the export instead)",
                 )
                 .in_column(label));
             }

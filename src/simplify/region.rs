@@ -326,8 +326,9 @@ fn band_and_sweep(
     }
     // The region swept by the collapse: the tetrahedra (old triangle, v) must hold no point of W
     // deeper than eps_sweep, hence no point of the swept volume. A tetrahedron with v at a
-    // corner of its triangle is that triangle, which lies within eps of ∂W (every live triangle
-    // does): no point of W deeper than eps <= eps_sweep.
+    // corner of its triangle is that flat triangle, which holds no point of W deeper than
+    // eps <= eps_sweep: every live triangle is within eps of ∂W (a checked one) or an unchanged
+    // face of the joined voxels, which lies on a voxel outside W (depth 0).
     let es = opts.eps_sweep;
     for p in old {
         if eps <= es && p.contains(&v) {
