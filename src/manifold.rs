@@ -373,6 +373,24 @@ mod tests {
         assert!((joined.reach() - 11f64.sqrt() / 2.0).abs() < 1e-12);
     }
 
+    /// Pinches against the grid's border, where some cells of a block lie outside the grid and
+    /// cannot be added.
+    #[test]
+    fn pinches_on_the_grid_border_are_joined_inside_the_grid() {
+        check_joined(
+            &DenseSet::from_list([2, 2, 1], &[[0, 0, 0], [1, 1, 0]]),
+            true,
+        );
+        check_joined(
+            &DenseSet::from_list([2, 2, 2], &[[0, 0, 0], [1, 1, 1]]),
+            true,
+        );
+        check_joined(
+            &DenseSet::from_list([2, 1, 2], &[[0, 0, 1], [1, 0, 0]]),
+            true,
+        );
+    }
+
     #[test]
     fn outside_voxels_touching_along_an_edge_or_corner_are_filled() {
         for holes in [

@@ -117,7 +117,11 @@ fn good_run_writes_all_outputs_and_never_overwrites_silently() {
     // A second run refuses to overwrite and leaves the files as they were.
     let before = fs::read(out.join("part.depth-zmin.exr")).unwrap();
     let o = sweptvol(&run_args(gs, ts, os));
-    assert_eq!(o.status.code(), Some(2), "an existing output is a usage error");
+    assert_eq!(
+        o.status.code(),
+        Some(2),
+        "an existing output is a usage error"
+    );
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(
         err.contains("already exists") && err.contains("--overwrite"),
@@ -305,6 +309,21 @@ fn also_writes_stl_ply_and_obj_of_the_same_mesh() {
     let stl = fs::read(out.join("part.swept.stl")).unwrap();
     let facets = u32::from_le_bytes(stl[80..84].try_into().unwrap()) as u64;
     assert_eq!((facets, stl.len() as u64), (triangles, 84 + 50 * triangles));
+    // Facet by facet the .glb's triangles, at the .glb's f32 positions.
+    let glb = sweptvol::io::gltf_in::read_generator(&out.join("part.swept.glb")).unwrap();
+    let part = &glb.parts[0];
+    for (f, t) in part.triangles.iter().enumerate() {
+        let rec = &stl[84 + 50 * f + 12..84 + 50 * f + 48];
+        let corners: Vec<f32> = rec
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes(c.try_into().unwrap()))
+            .collect();
+        let want: Vec<f32> = t
+            .iter()
+            .flat_map(|&v| part.positions[v as usize].to_array())
+            .collect();
+        assert_eq!(corners, want, "facet {f}");
+    }
     let obj = fs::read_to_string(out.join("part.swept.obj")).unwrap();
     assert_eq!(
         obj.lines().filter(|l| l.starts_with("f ")).count() as u64,

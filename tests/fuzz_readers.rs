@@ -100,42 +100,69 @@ fn mutate(rng: &mut Rng, seed: &[u8]) -> Vec<u8> {
     v
 }
 
-/// Parse mutations of each seed with `parse`; panics name the reader, the iteration and the
-/// input's bytes (saved for reproduction).
-fn fuzz(name: &str, seeds: &[Vec<u8>], rng_seed: u64, parse: &dyn Fn(&[u8]) -> bool) {
+/// Parse mutations of each seed with `parse` on a worker thread, so that a parse that never
+/// returns fails the test after `LIMIT` instead of hanging it; panics name the reader, the
+/// iteration and the input's bytes (saved for reproduction).
+fn fuzz(
+    name: &str,
+    seeds: &[Vec<u8>],
+    rng_seed: u64,
+    parse: impl Fn(&[u8]) -> bool + Send + 'static,
+) {
+    use std::sync::mpsc;
     let dir = std::env::temp_dir();
     let mut rng = Rng(rng_seed);
     let (mut accepted, mut slowest) = (0usize, Duration::ZERO);
     let n = iterations();
+    let (to_worker, inputs) = mpsc::channel::<Vec<u8>>();
+    let (to_test, outcomes) = mpsc::channel();
+    std::thread::spawn(move || {
+        for input in inputs {
+            let t = Instant::now();
+            let outcome = catch_unwind(AssertUnwindSafe(|| parse(&input)));
+            if to_test.send((outcome.ok(), t.elapsed())).is_err() {
+                break;
+            }
+        }
+    });
     for i in 0..n {
         let seed = &seeds[i % seeds.len()];
         let input = mutate(&mut rng, seed);
-        let t = Instant::now();
-        let outcome = catch_unwind(AssertUnwindSafe(|| parse(&input)));
-        let took = t.elapsed();
-        let keep = || {
+        let keep = |input: &[u8]| {
             let p = dir.join(format!("sweptvol-fuzz-{name}-{i}.bin"));
-            std::fs::write(&p, &input).unwrap();
+            std::fs::write(&p, input).unwrap();
             p
         };
-        match outcome {
-            Ok(ok) => accepted += ok as usize,
-            Err(_) => panic!(
+        to_worker.send(input.clone()).unwrap();
+        match outcomes.recv_timeout(LIMIT) {
+            Ok((Some(ok), took)) => {
+                accepted += ok as usize;
+                slowest = slowest.max(took);
+                let saved = || keep(&input).display().to_string();
+                assert!(
+                    took < LIMIT,
+                    "{name}: input {i} took {took:?}; saved as {}",
+                    saved()
+                );
+            }
+            Ok((None, _)) => panic!(
                 "{name}: input {i} panicked the reader; saved as {}",
-                keep().display()
+                keep(&input).display()
+            ),
+            Err(_) => panic!(
+                "{name}: input {i} did not return within {LIMIT:?}; saved as {}",
+                keep(&input).display()
             ),
         }
-        assert!(
-            took < LIMIT,
-            "{name}: input {i} took {took:?}; saved as {}",
-            keep().display()
-        );
-        slowest = slowest.max(took);
     }
     eprintln!("fuzz {name}: {n} inputs, {accepted} accepted, 0 panics, slowest {slowest:?}");
     assert!(
         accepted < n,
         "{name}: every mutation was accepted, so nothing was mutated"
+    );
+    assert!(
+        accepted > 0,
+        "{name}: no mutation was accepted: the seeds or the reader call are broken"
     );
 }
 
@@ -158,7 +185,7 @@ fn gltf_reader_never_panics_or_hangs() {
     let path = dir.path().join("fuzz.gltf");
     sweptvol::io::gltf_in::parse_generator(&path, &gltf).expect("the .gltf seed is valid");
     sweptvol::io::gltf_in::parse_generator(&path, &glb).expect("the .glb seed is valid");
-    fuzz("gltf", &[glb, gltf], 0x91f_0001, &|bytes| {
+    fuzz("gltf", &[glb, gltf], 0x91f_0001, move |bytes| {
         sweptvol::io::gltf_in::parse_generator(&path, bytes).is_ok()
     });
 }
@@ -180,7 +207,7 @@ fn trajectory_reader_never_panics_or_hangs() {
         sweptvol::io::trajectory::parse_trajectory(path, seed).expect("the CSV seeds are valid");
     }
     let seeds = [head.clone(), matrix.into(), pose.into()].map(String::into_bytes);
-    fuzz("csv", &seeds, 0xc5f_0002, &|bytes| {
+    fuzz("csv", &seeds, 0xc5f_0002, move |bytes| {
         // The reader takes text: invalid UTF-8 is refused before it (read_trajectory's job).
         match std::str::from_utf8(bytes) {
             Ok(text) => sweptvol::io::trajectory::parse_trajectory(path, text).is_ok(),
@@ -201,7 +228,7 @@ fn job_options_reader_never_panics_or_hangs() {
         sweptvol::watch::protocol::parse_job_options(path, s)
             .expect("the job.json seeds are valid");
     }
-    fuzz("job.json", &seeds, 0x10b_0003, &|bytes| {
+    fuzz("job.json", &seeds, 0x10b_0003, move |bytes| {
         sweptvol::watch::protocol::parse_job_options(path, bytes).is_ok()
     });
 }
@@ -233,7 +260,7 @@ fn depth_exr_reader_never_panics_or_hangs() {
     read_depth_exr(&seed_path).expect("the EXR seed is valid");
     let seed = std::fs::read(&seed_path).unwrap();
     let path = dir.path().join("fuzz.exr");
-    fuzz("exr", &[seed], 0xe4f_0004, &|bytes| {
+    fuzz("exr", &[seed], 0xe4f_0004, move |bytes| {
         std::fs::write(&path, bytes).unwrap();
         read_depth_exr(&path).is_ok()
     });

@@ -100,6 +100,9 @@ fn joined_voxel_sets_are_solids_to_trimesh_and_manifold3d() {
         );
         assert!(out.contains("own count"), "{out}");
     }
+    // trimesh, not only the check's own count, refuses a four-face edge.
+    let (_, out) = check(&python, &plain[..1]);
+    assert!(out.contains("trimesh: not watertight"), "{out}");
 }
 
 /// Write a generator (`mesh` at the identity) and a matrix CSV of `poses`.
