@@ -164,6 +164,7 @@ fn main() -> anyhow::Result<()> {
             target_triangles: 0,
             keep_start_mesh: false,
             also: Vec::new(),
+            check_memory: true,
         };
         let job = pipeline::prepare(&opts)?;
         let report = pipeline::execute(&job, &Backend::acquire(BackendChoice::Cpu)?, &Silent)?;

@@ -159,6 +159,10 @@ struct RunArgs {
     /// .obj: a comma-separated list.
     #[arg(long, value_enum, value_delimiter = ',', value_name = "FORMATS")]
     also: Vec<sweptvol::io::mesh_formats::MeshFormat>,
+    /// Run even when the memory estimate (from the grid size, made for parts that fill their
+    /// box) exceeds what is available; for thin or sparse parts it can be far too high.
+    #[arg(long)]
+    no_memory_check: bool,
     /// Replace existing outputs.
     #[arg(long)]
     overwrite: bool,
@@ -205,6 +209,7 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
         target_triangles: args.target_triangles.unwrap_or(0),
         keep_start_mesh: args.keep_start_mesh,
         also: args.also.clone(),
+        check_memory: !args.no_memory_check,
     };
     // Inputs first: a bad file is reported before any GPU start-up.
     let job = pipeline::prepare(&opts)?;

@@ -47,8 +47,9 @@ pub fn estimate(grid: &Grid, keep_start_mesh: bool) -> f64 {
     BASE_BYTES + pixels * (IMAGE_BYTES_PER_PIXEL + TRIANGLES_PER_PIXEL * per_triangle)
 }
 
-/// Memory this process can still get, bytes: the least of MemAvailable (/proc/meminfo) and
-/// RLIMIT_AS less the address space in use (/proc/self/statm). None where neither is known.
+/// Memory this process can still get, bytes: the least of MemAvailable (/proc/meminfo),
+/// RLIMIT_AS less the address space in use (/proc/self/statm) and the cgroup's headroom. None
+/// where none is known.
 pub fn available() -> Option<f64> {
     let meminfo = std::fs::read_to_string("/proc/meminfo").ok().and_then(|s| {
         s.lines()
@@ -73,10 +74,23 @@ pub fn available() -> Option<f64> {
         let page = unsafe { libc::sysconf(libc::_SC_PAGESIZE) }.max(4096) as f64;
         (lim.rlim_cur as f64 - used * page).max(0.0)
     });
-    match (meminfo, address_space) {
-        (Some(a), Some(b)) => Some(a.min(b)),
-        (a, b) => a.or(b),
-    }
+    [meminfo, address_space, cgroup_headroom()]
+        .into_iter()
+        .flatten()
+        .reduce(f64::min)
+}
+
+/// What the process's cgroup (v2) still allows: memory.max less memory.current, bytes; None
+/// outside a limited cgroup. Containers see the host's MemAvailable, so this is their limit.
+fn cgroup_headroom() -> Option<f64> {
+    let own = std::fs::read_to_string("/proc/self/cgroup").ok()?;
+    // v2: one line "0::/path".
+    let path = own.lines().find_map(|l| l.strip_prefix("0::"))?.trim();
+    let dir = std::path::Path::new("/sys/fs/cgroup").join(path.trim_start_matches('/'));
+    let read = |name: &str| std::fs::read_to_string(dir.join(name)).ok();
+    let max: f64 = read("memory.max")?.trim().parse().ok()?; // "max" (no limit) fails here
+    let current: f64 = read("memory.current")?.trim().parse().ok()?;
+    Some((max - current).max(0.0))
 }
 
 /// Refuse a run whose estimate exceeds `available` bytes, naming the estimate and the largest
@@ -95,7 +109,7 @@ pub fn check(grid: &Grid, keep_start_mesh: bool, available: Option<f64>) -> Resu
     let fit = ((n as f64 * ratio).floor() as u32).max(1);
     let gib = |b: f64| b / 1073741824.0;
     Err(UsageError::new(format!(
-        "resolution {n} needs an estimated {:.1} GiB of memory (grid {}x{}x{}: depth images, classifier ranges, about {:.2e} start-mesh triangles and the simplifier), but only {:.1} GiB is available (MemAvailable, RLIMIT_AS); nothing was allocated: use --resolution {fit} or less, or --tolerance {:.3e} or more",
+        "resolution {n} needs an estimated {:.1} GiB of memory (grid {}x{}x{}: depth images, classifier ranges, about {:.2e} start-mesh triangles and the simplifier), but only {:.1} GiB is available (MemAvailable, RLIMIT_AS, cgroup memory.max); nothing was allocated: use --resolution {fit} or less, or --tolerance {:.3e} or more (the estimate is made for parts that fill their box; for a thin or sparse part, --no-memory-check runs anyway)",
         gib(need),
         grid.dims[0],
         grid.dims[1],

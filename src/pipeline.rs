@@ -111,6 +111,8 @@ pub struct RunOptions {
     pub keep_start_mesh: bool,
     /// Also write the output mesh in these formats (`<stem>.swept.stl`, ...).
     pub also: Vec<MeshFormat>,
+    /// Refuse a run whose estimated memory (`memory::estimate`) exceeds what is available.
+    pub check_memory: bool,
 }
 
 /// The report written beside the depth images (`<name>.report.json`).
@@ -333,11 +335,13 @@ pub fn prepare(opts: &RunOptions) -> anyhow::Result<Prepared> {
         opts.accuracy,
         opts.overrides,
     )?;
-    crate::memory::check(
-        &input.grid,
-        opts.keep_start_mesh,
-        crate::memory::available(),
-    )?;
+    if opts.check_memory {
+        crate::memory::check(
+            &input.grid,
+            opts.keep_start_mesh,
+            crate::memory::available(),
+        )?;
+    }
     Ok(Prepared {
         opts: opts.clone(),
         outputs,

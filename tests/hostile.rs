@@ -260,7 +260,9 @@ fn a_run_that_cannot_fit_in_memory_is_refused_up_front() {
     let err = stderr(&o);
     assert_eq!(o.status.code(), Some(2), "{err}");
     assert!(
-        err.contains("GiB") && err.contains("use --resolution"),
+        err.contains("GiB")
+            && err.contains("use --resolution")
+            && err.contains("--no-memory-check"),
         "{err}"
     );
     assert!(

@@ -323,6 +323,7 @@ impl JobOptions {
             target_triangles: self.target_triangles.unwrap_or(0),
             keep_start_mesh: self.keep_start_mesh.unwrap_or(false),
             also: self.also.clone().unwrap_or_default(),
+            check_memory: true,
         }
     }
 }
