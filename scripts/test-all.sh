@@ -46,9 +46,10 @@ export SWEPTVOL_REQUIRE_VALIDATOR=1  # and for the glTF validator
 export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-/tmp/xdg-runtime-$(id -u)}"
 mkdir -p "$XDG_RUNTIME_DIR" && chmod 700 "$XDG_RUNTIME_DIR"
 
-say "format and lints"
+say "format, lints and docs"
 cargo fmt --all -- --check
 cargo clippy --all-targets --locked -- -D warnings
+RUSTDOCFLAGS="-D warnings" cargo doc --no-deps --locked --quiet  # a renamed item breaks a doc link
 
 say "tests (GPU path on whatever adapter wgpu finds: lavapipe here)"
 cargo test --all-targets --locked

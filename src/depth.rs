@@ -2,7 +2,7 @@
 //!
 //! One image per axis holds both D⁻ (`min`) and D⁺ (`max`) of every pixel: the rays of the
 //! `-min` and `-max` images of an axis are the same rays. Depths are grid coordinates along
-//! the axis (world = origin[axis] + t·h). The writers round every value outward and the mesh
+//! the axis (world = origin\[axis\] + t·h). The writers round every value outward and the mesh
 //! stage compares them with voxel centres (k + ½) exactly.
 //!
 //! Pixel layout (also in the EXR headers): for axis a the columns run along `COLUMN_AXIS[a]`

@@ -1,17 +1,26 @@
 //! sweptvol: conservative swept volumes of triangle meshes along discrete trajectories.
 //!
-//! Data flows one way: inputs (`io`) -> `job` (parts, poses, grid) -> `sweep`
-//! (GPU or its CPU twin) -> `depth::DepthImages`, the contract with the mesh stage.
+//! The modules follow the data, one way (docs/design.md has the arguments):
+//!
+//! - [`io`]: the only code that touches files: glTF and CSV in, EXR, glTF, STL, PLY, OBJ out.
+//! - [`model`], [`job`], [`grid`], [`memory`]: parts and poses become the sweep's input in grid
+//!   units, with the voxel grid, the parameters (δ, ε) and the f32 rounding term ρ.
+//! - [`sweep`]: the δ-offset of every posed triangle ray cast into six depth images, on the GPU
+//!   (wgpu) or its CPU twin (paper section 4).
+//! - [`depth`]: the six images, the contract between the sweep and the mesh stage.
+//! - [`mesh`]: voxels classified by condition ⋆ ([`mesh::classify`]), pinches joined so the
+//!   boundary is a 2-manifold ([`mesh::manifold`]), the voxel boundary extracted
+//!   ([`mesh::extract`]).
+//! - [`simplify`]: edge collapses inside the tolerance volume (paper section 5), with its own
+//!   band, sweep and self-intersection tests.
+//! - [`pipeline`]: one run, files in to files out; [`watch`] and `main.rs` are its shells.
+//! - [`verify`]: an independent certificate for any swept-volume mesh.
 
-pub mod band;
 pub mod depth;
 pub mod error;
-pub mod extract;
 pub mod grid;
-pub mod intersect;
 pub mod io;
 pub mod job;
-pub mod manifold;
 pub mod memory;
 pub mod mesh;
 pub mod model;
@@ -19,5 +28,4 @@ pub mod pipeline;
 pub mod simplify;
 pub mod sweep;
 pub mod verify;
-pub mod voxel;
 pub mod watch;

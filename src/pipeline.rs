@@ -9,17 +9,17 @@ use anyhow::{bail, Context};
 use serde::Serialize;
 
 use crate::depth::{DepthImages, AXIS_NAMES};
-use crate::extract;
 use crate::grid::{Accuracy, Grid, Overrides};
 use crate::io::exr_depth::{self, ExtraMeta, Side};
 use crate::io::mesh_formats::MeshFormat;
 use crate::io::{atomic, gltf_in, gltf_out, trajectory};
 use crate::job::{self, PartRange, SweepInput};
-use crate::manifold::Joined;
+use crate::mesh::classify::Classifier;
+use crate::mesh::extract;
+use crate::mesh::manifold::Joined;
 use crate::mesh::{ManifoldDefects, Mesh};
 use crate::simplify::{simplify_until, SimplifyOptions, SimplifyStats};
 use crate::sweep::{cpu, gpu::Gpu, Cancelled, Observer};
-use crate::voxel::Classifier;
 
 /// What the report's `hausdorff_bound` covers (paper, section 4).
 const HAUSDORFF_SCOPE: &str = "wherever the swept volume's concavities are visible along some axis; concavities hidden from all six directions are filled and can lie farther: measure with sweptvol verify";
@@ -29,7 +29,7 @@ const MIN_RADIUS_VOXELS: f64 = 0.05;
 /// Kept between the swept region's band and the limit δ - √3h/2, voxels.
 const SWEEP_MARGIN_VOXELS: f64 = 0.05;
 /// Widest band the simplifier decides (exact distances reach 2 voxels), voxels.
-const BAND_CAP_VOXELS: f64 = crate::band::REACH - 0.05;
+const BAND_CAP_VOXELS: f64 = crate::simplify::band::REACH - 0.05;
 
 /// Which sweep implementation runs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, Serialize, serde::Deserialize)]

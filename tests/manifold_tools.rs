@@ -10,12 +10,12 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use common::Rng;
-use sweptvol::extract::extract;
 use sweptvol::grid::Grid;
 use sweptvol::io::gltf_out;
-use sweptvol::manifold::Joined;
+use sweptvol::mesh::classify::DenseSet;
+use sweptvol::mesh::extract::extract;
+use sweptvol::mesh::manifold::Joined;
 use sweptvol::mesh::Mesh;
-use sweptvol::voxel::DenseSet;
 
 /// Run the checker on `files`; its exit status and output.
 fn check(python: &str, files: &[PathBuf]) -> (bool, String) {

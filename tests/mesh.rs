@@ -14,14 +14,14 @@ use common::{
 };
 use glam::{DMat4, DVec3};
 use sweptvol::depth::DepthImages;
-use sweptvol::extract::extract;
 use sweptvol::io::{gltf_in, gltf_out};
 use sweptvol::job::SweepInput;
+use sweptvol::mesh::classify::Classifier;
+use sweptvol::mesh::extract::extract;
 use sweptvol::mesh::Mesh;
 use sweptvol::model::Generator;
 use sweptvol::simplify::{simplify, SimplifyOptions};
 use sweptvol::sweep::{cpu, Silent};
-use sweptvol::voxel::Classifier;
 
 /// Sweep `g` along `poses` at resolution `n`: the input, the depth images and the voxel boundary.
 fn sweep_mesh(g: &Generator, poses: &[DMat4], n: u32) -> (SweepInput, DepthImages, Mesh) {

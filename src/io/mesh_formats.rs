@@ -122,13 +122,13 @@ mod tests {
 
     /// A unit cube of voxels at grid (1, 2, 3), h = 0.5, origin (-1, 0, 1).
     fn cube() -> (Mesh, Grid) {
-        let set = crate::voxel::DenseSet::from_list([3, 4, 5], &[[1, 2, 3]]);
+        let set = crate::mesh::classify::DenseSet::from_list([3, 4, 5], &[[1, 2, 3]]);
         let grid = Grid {
             origin: [-1.0, 0.0, 1.0],
             h: 0.5,
             dims: [3, 4, 5],
         };
-        (crate::extract::extract(&set), grid)
+        (crate::mesh::extract::extract(&set), grid)
     }
 
     fn f32s(b: &[u8]) -> Vec<f32> {

@@ -2,13 +2,13 @@
 //! sound checks argued in docs/design.md:
 //!
 //! - tolerance: every new triangle lies within `eps` of ∂W (adaptive pieces with exact
-//!   distances, [`Proximity::triangle_within`]), so it stays at least δ - √3/2 - eps outside the
+//!   distances, `band::Proximity::triangle_within`), so it stays at least δ - √3/2 - eps outside the
 //!   swept volume and within eps + √3/2 + δ of it where concavities are visible;
 //! - sweep: every tetrahedron joining an old triangle around the edge to the new vertex holds no
 //!   point of W deeper than `eps_sweep` (eps_sweep + √3/2 < δ), so the surface never passes over
 //!   a point of the swept volume and every such point stays enclosed;
 //! - no self-intersection: new triangles are tested against the triangles near them (a spatial
-//!   hash) and each other, conservatively ([`crate::intersect::conflict`]);
+//!   hash) and each other, conservatively (`intersect::conflict`);
 //! - topology: only edges with two faces whose endpoints are manifold and satisfy the link
 //!   condition collapse, so the mesh stays watertight and no fan is torn; no face may flip.
 //!
@@ -23,11 +23,13 @@ use rayon::prelude::*;
 
 use glam::{DMat3, DVec3};
 
-use crate::band::{self, Proximity};
-use crate::intersect::{bounds, bounds_meet, boxes_meet, conflict, TriangleHash};
+use crate::mesh::classify::Classifier;
 use crate::mesh::Mesh;
-use crate::voxel::Classifier;
+use band::Proximity;
+use intersect::{bounds, bounds_meet, boxes_meet, conflict, TriangleHash};
 
+pub(crate) mod band;
+pub(crate) mod intersect;
 mod region;
 
 use region::Region;
@@ -56,7 +58,7 @@ pub struct SimplifyOptions {
 pub struct SimplifyStats {
     pub collapses: u64,
     /// Collapses that kept the surface's point set (flat or straight-crease vertices merged
-    /// along it: [`Region::keeps_surface`]).
+    /// along it: `Region::keeps_surface`).
     pub collapses_in_plane: u64,
     pub rejected_topology: u64,
     pub rejected_flip: u64,
@@ -859,9 +861,9 @@ impl State {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::band::dist_to_boundary;
-    use crate::extract::extract;
-    use crate::voxel::test_support::boxed;
+    use crate::mesh::classify::test_support::boxed;
+    use crate::mesh::extract::extract;
+    use crate::simplify::band::dist_to_boundary;
 
     /// Generalized winding number of a closed mesh at `p` (solid angles, Van Oosterom and
     /// Strackee).
@@ -984,7 +986,8 @@ mod tests {
         };
         let (mut flat, mut crease) = (0, 0);
         let block = boxed([14, 14, 14], [2.0, 2.0, 2.0], [12.0, 12.0, 12.0]);
-        let rough = (0..3).map(|seed| crate::voxel::test_support::random([14, 14, 14], seed));
+        let rough =
+            (0..3).map(|seed| crate::mesh::classify::test_support::random([14, 14, 14], seed));
         for (seed, cls) in std::iter::once(block).chain(rough).enumerate() {
             let mut s = State::new(extract(&cls));
             let mut scratch = Scratch::new(&cls, s.tris.len());
@@ -1143,7 +1146,7 @@ mod tests {
     #[test]
     fn random_voxel_sets_simplify_without_self_intersection() {
         for seed in 0..3 {
-            let cls = crate::voxel::test_support::random([20, 20, 20], seed);
+            let cls = crate::mesh::classify::test_support::random([20, 20, 20], seed);
             let start = extract(&cls);
             let (out, stats) = simplify(&start, &cls, defaults());
             assert!(out.unpaired_edges().is_empty());
@@ -1193,8 +1196,8 @@ mod tests {
     fn joined_voxel_sets_simplify_to_a_manifold() {
         let mut joined_any = 0;
         for seed in 0..3 {
-            let cls = crate::voxel::test_support::random([20, 20, 20], seed);
-            let joined = crate::manifold::Joined::new(&cls);
+            let cls = crate::mesh::classify::test_support::random([20, 20, 20], seed);
+            let joined = crate::mesh::manifold::Joined::new(&cls);
             joined_any += joined.added().len();
             let start = extract(&joined);
             assert!(start.manifold_defects().is_manifold());
@@ -1217,8 +1220,8 @@ mod tests {
                 for k in range(x.z) {
                     for j in range(x.y) {
                         for i in range(x.x) {
-                            classes[crate::voxel::VoxelSet::inside(&joined, i, j, k) as usize] =
-                                true;
+                            classes[crate::mesh::classify::VoxelSet::inside(&joined, i, j, k)
+                                as usize] = true;
                         }
                     }
                 }

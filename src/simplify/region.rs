@@ -6,7 +6,7 @@
 use glam::DVec3;
 
 use super::{cheapest, Plan, Quadric, Reject, SimplifyOptions};
-use crate::band::Proximity;
+use crate::simplify::band::Proximity;
 
 /// The triangles around edge (a, b) and their vertices, copied from the mesh when the edge joins
 /// a batch. The regions of the batches in flight are disjoint (their vertex sets), and a commit

@@ -224,7 +224,7 @@ impl PreparedTriangle {
 }
 
 impl PreparedTriangle {
-    /// [`interval_at`](Self::interval_at) for the 8 rays through (pu[i], pv), i = 0..8: the same
+    /// [`interval_at`](Self::interval_at) for the 8 rays through (pu\[i\], pv), i = 0..8: the same
     /// IEEE operations in the same order in every lane, with masks for the branches, so each
     /// lane's result is bit-identical to the scalar one (a test checks it). Lanes that miss are
     /// empty (t0 = +inf, t1 = -inf).

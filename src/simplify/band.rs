@@ -8,7 +8,7 @@ use std::hash::Hasher;
 
 use glam::DVec3;
 
-use crate::voxel::Classifier;
+use crate::mesh::classify::Classifier;
 
 /// Distances are exact below this (the memo covers the 5×5×5 voxels around a point's voxel; a
 /// voxel three steps away is at least 2 from any point of the middle one).
@@ -24,6 +24,7 @@ fn dist2_to_cube(p: DVec3, v: [isize; 3]) -> f64 {
 /// The exact distance from `p` to ∂W when it is at most `limit`, else None (farther). Brute
 /// force over the (2⌈limit⌉+1)³ voxels around `p`: the reference the memoized queries are
 /// tested against.
+#[cfg(test)]
 pub fn dist_to_boundary(cls: &Classifier, p: DVec3, limit: f64) -> Option<f64> {
     let home = p.floor();
     let here = cls.inside(home.x as isize, home.y as isize, home.z as isize);
@@ -155,6 +156,7 @@ fn compute(cls: &Classifier, v: [isize; 3]) -> u128 {
 }
 
 impl<'c> Proximity<'c> {
+    #[cfg(test)]
     pub fn new(cls: &'c Classifier) -> Self {
         Self::with_capacity(cls, MAX_SLOTS)
     }
@@ -482,7 +484,7 @@ enum Verdict {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::voxel::test_support::{boxed as boxed_at, random as random_at};
+    use crate::mesh::classify::test_support::{boxed as boxed_at, random as random_at};
 
     /// The box [1, 4) x [1, 3) x [2, 5) of a 6x5x7 grid.
     fn boxed() -> Classifier {

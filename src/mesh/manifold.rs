@@ -15,7 +15,7 @@
 
 use std::collections::{HashSet, VecDeque};
 
-use crate::voxel::VoxelSet;
+use crate::mesh::classify::VoxelSet;
 
 /// Cell `b` of a vertex's 2×2×2 block is voxel vertex + (b & 1, b >> 1 & 1, b >> 2 & 1) - 1.
 const fn cell_offset(b: usize) -> [isize; 3] {
@@ -83,7 +83,7 @@ const fn is_disk(config: u8) -> bool {
     }
 }
 
-/// [`is_disk`] for every configuration of a vertex's block.
+/// `is_disk` for every configuration of a vertex's block.
 pub const DISK: [bool; 256] = {
     let mut t = [false; 256];
     let mut c = 0;
@@ -332,8 +332,8 @@ impl VoxelSet for Joined<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::extract::extract;
-    use crate::voxel::DenseSet;
+    use crate::mesh::classify::DenseSet;
+    use crate::mesh::extract::extract;
 
     /// The table agrees with an independent test of the extracted mesh (every edge two
     /// triangles, every vertex one fan) on each of the 256 blocks, alone in a 4×4×4 grid.

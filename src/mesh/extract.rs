@@ -10,8 +10,8 @@
 
 use glam::DVec3;
 
+use crate::mesh::classify::VoxelSet;
 use crate::mesh::Mesh;
-use crate::voxel::VoxelSet;
 
 const NONE: u32 = u32::MAX;
 
@@ -129,7 +129,7 @@ pub fn extract(set: &dyn VoxelSet) -> Mesh {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::voxel::DenseSet;
+    use crate::mesh::classify::DenseSet;
 
     fn check(set: DenseSet, triangles: usize, vertices: usize) {
         let voxels = set.len() as f64;

@@ -10,7 +10,7 @@ use std::hash::BuildHasherDefault;
 
 use glam::DVec3;
 
-use crate::band::KeyHasher;
+use crate::simplify::band::KeyHasher;
 
 /// Distance below which two triangles without a common vertex count as touching, grid units.
 pub const TOUCH: f64 = 1e-6;
@@ -175,6 +175,7 @@ fn inside_prism(x: DVec3, t: [DVec3; 3], n: DVec3) -> bool {
 
 /// Distance between two triangles: zero when they intersect (some edge of one then meets the
 /// other), else reached between a vertex and a face or between two edges.
+#[cfg(test)]
 pub fn triangle_distance(s: [DVec3; 3], t: [DVec3; 3]) -> f64 {
     let mut best = f64::INFINITY;
     for k in 0..3 {
