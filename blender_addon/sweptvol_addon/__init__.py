@@ -16,7 +16,7 @@ bl_info = {
 
 import bpy  # noqa: E402
 
-from . import operators, panel, prefs  # noqa: E402
+from . import daemon, operators, panel, prefs  # noqa: E402
 
 _classes = prefs.classes + panel.classes + operators.classes
 
@@ -28,7 +28,7 @@ def register():
 
 
 def unregister():
-    operators.stop_daemon()
+    daemon.stop()
     if bpy.app.timers.is_registered(operators._poll_timer):
         bpy.app.timers.unregister(operators._poll_timer)
     panel.unregister()

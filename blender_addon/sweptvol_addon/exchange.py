@@ -1,9 +1,10 @@
 """The folder exchange protocol of `sweptvol watch`, in plain Python (no bpy).
 
 docs/exchange-protocol.md is the contract; this module is the add-on's side of it:
-job folders written as `<job>.partial/` and renamed to `<job>/`, `job.json`, the trajectory
-CSV in the node + matrix form, `status.json` and `report.json` reading, the daemon's
-heartbeat, and the coordinate conversion between Blender (Z up) and glTF (Y up).
+the protocol's file names (the one place the add-on spells them), job folders written as
+`<job>.partial/` and renamed to `<job>/`, `job.json`, the trajectory CSV in the node + matrix
+form, `status.json` and `report.json` reading, and the coordinate conversion between Blender
+(Z up) and glTF (Y up). Starting and watching the daemon is `daemon.py`.
 
 Matrices are 4x4 row-major lists of lists of floats, acting on column vectors: p' = M·p.
 Everything here is tested by `blender_addon/tests/test_exchange.py` without Blender.
@@ -237,11 +238,33 @@ def trajectory_csv(rows):
 # ---------------------------------------------------------------------------------------------
 # Job folders
 
-PARTIAL_SUFFIX = ".partial"
+# The protocol's names, the add-on's one copy of them (docs/exchange-protocol.md; the Rust side
+# is src/watch/protocol.rs, and `sweptvol protocol` prints them: tests/test_protocol_names.py
+# compares the two). Nothing else in the add-on spells a protocol file name.
+
+PARTIAL_SUFFIX = ".partial"  # a job folder being written; renaming it without the suffix commits
+CONTROL_DIR = ".sweptvol"  # the daemon's own folder in the watched one
+HEARTBEAT = "daemon.json"  # in CONTROL_DIR: the daemon's heartbeat
+
+# What a client writes into a job folder
+GENERATOR_GLB = "generator.glb"
+GENERATOR_GLTF = "generator.gltf"  # the other accepted generator form (the add-on writes .glb)
+TRAJECTORY = "trajectory.csv"
+JOB_JSON = "job.json"
+CANCEL = "cancel"
+
+# What the daemon writes there
+MESH = "swept.glb"
+START_MESH = "start.glb"
+REPORT = "report.json"
+STATUS = "status.json"
+DEPTH_IMAGES = tuple(f"depth-{a}{s}.exr" for a in "xyz" for s in ("min", "max"))
+ALSO_OUTPUTS = {"stl": "swept.stl", "ply": "swept.ply", "obj": "swept.obj"}  # job.json `also`
+
 JOB_KEYS = ("resolution", "tolerance", "delta", "epsilon", "backend", "name",
             "target_triangles", "keep_start_mesh", "also")
+STATES = ("queued", "running", "done", "failed", "cancelled")  # status.json `state`
 FINISHED = ("done", "failed", "cancelled")
-DEPTH_IMAGES = tuple(f"depth-{a}{s}.exr" for a in "xyz" for s in ("min", "max"))
 
 
 def job_name(base, folder, now=None):
@@ -295,18 +318,17 @@ def _write_file(path, data):
 def write_job_inputs(partial, csv_text, options):
     """Write trajectory.csv and job.json into a `.partial` folder (generator.glb is written by
     the exporter beside them)."""
-    _write_file(os.path.join(partial, "trajectory.csv"), csv_text.encode("utf-8"))
-    _write_file(os.path.join(partial, "job.json"), (json.dumps(job_options(**options), indent=1) + "\n").encode())
+    _write_file(os.path.join(partial, TRAJECTORY), csv_text.encode("utf-8"))
+    _write_file(os.path.join(partial, JOB_JSON), (json.dumps(job_options(**options), indent=1) + "\n").encode())
 
 
 def commit_job(partial):
     """Rename `<job>.partial/` to `<job>/`: the commit. Returns the job folder."""
     if not partial.endswith(PARTIAL_SUFFIX):
         raise ValueError(f"{partial} is not a .partial folder")
-    if not os.path.isfile(os.path.join(partial, "generator.glb")):
-        raise FileNotFoundError(f"{partial} has no generator.glb")
-    if not os.path.isfile(os.path.join(partial, "trajectory.csv")):
-        raise FileNotFoundError(f"{partial} has no trajectory.csv")
+    for name in (GENERATOR_GLB, TRAJECTORY):
+        if not os.path.isfile(os.path.join(partial, name)):
+            raise FileNotFoundError(f"{partial} has no {name}")
     final = partial[: -len(PARTIAL_SUFFIX)]
     if os.path.lexists(final):
         raise FileExistsError(f"{final} already exists")
@@ -324,7 +346,7 @@ def abandon_job(partial):
 
 def request_cancel(job_dir):
     """Create the `cancel` file in a job folder."""
-    with open(os.path.join(job_dir, "cancel"), "a"):
+    with open(os.path.join(job_dir, CANCEL), "a"):
         pass
 
 
@@ -340,11 +362,11 @@ def read_json(path):
 
 def read_status(job_dir):
     """`status.json` of a job folder as a dict (None while there is none)."""
-    return read_json(os.path.join(job_dir, "status.json"))
+    return read_json(os.path.join(job_dir, STATUS))
 
 
 def read_report(job_dir):
-    return read_json(os.path.join(job_dir, "report.json"))
+    return read_json(os.path.join(job_dir, REPORT))
 
 
 def describe_status(status):
@@ -384,28 +406,3 @@ def result_summary(report):
         if value is not None:
             out[key] = value
     return out
-
-
-# ---------------------------------------------------------------------------------------------
-# The daemon
-
-def daemon_alive(folder, now=None):
-    """(alive, pid or None): a daemon runs on `folder` if `.sweptvol/daemon.json` says
-    `running` and its heartbeat is less than three intervals old."""
-    info = read_json(os.path.join(folder, ".sweptvol", "daemon.json"))
-    if not info or info.get("state") != "running":
-        return False, None
-    now = time.time() if now is None else now
-    try:
-        age = now - float(info["heartbeat_at"])
-        interval = float(info.get("heartbeat_interval_s", 2.0))
-    except (KeyError, TypeError, ValueError):
-        return False, None
-    return age < 3.0 * interval, info.get("pid")
-
-
-def daemon_command(binary, folder, backend=None):
-    cmd = [binary, "watch", folder]
-    if backend and backend != "auto":
-        cmd += ["--backend", backend]
-    return cmd

@@ -1,18 +1,17 @@
 """Operators: compute (export -> job folder), cancel, import the result, open the depth images.
 
-The bpy edge of the add-on; the protocol itself lives in `exchange.py` (no bpy).
+The bpy edge of the add-on; the protocol itself lives in `exchange.py`, starting and stopping the
+daemon in `daemon.py` (both without bpy).
 """
 
-import atexit
 import math
 import os
-import subprocess
 import time
 
 import bpy
 import numpy as np
 
-from . import compat, exchange, prefs
+from . import compat, daemon, exchange, prefs
 
 COLLECTION = "Swept Volumes"
 MATERIAL = "sweptvol swept volume"
@@ -20,66 +19,16 @@ POLL_SECONDS = 0.5
 
 # Jobs submitted in this session: dicts with dir, label, sources, scene, line, state, imported.
 JOBS = []
-_daemons = {}  # folder -> (Popen, log file): the daemons this add-on started
 
 
 # ---------------------------------------------------------------------------------------------
-# The daemon
-
-
-def daemon_status(folder):
-    """(running, pid): a live heartbeat, or a daemon we started that has not exited yet."""
-    alive, pid = exchange.daemon_alive(folder)
-    if alive:
-        return True, pid
-    proc = _daemons.get(folder, (None, None))[0]
-    if proc is not None and proc.poll() is None:
-        return True, proc.pid
-    return False, None
+# The daemon (process control is daemon.py; this is only where the preferences come in)
 
 
 def ensure_daemon(p, folder):
-    """Start `sweptvol watch folder` if none runs and auto_start is on.
+    """Start `sweptvol watch folder` if none runs and auto_start is on (daemon.ensure).
     Returns (ok, message): message is a warning for the user, or ''."""
-    running, _ = daemon_status(folder)
-    if running:
-        return True, ""
-    if not p.auto_start:
-        return False, (f"no sweptvol daemon seems to be running on {folder}: the job waits there "
-                       f"until one starts (`sweptvol watch {folder}`, or turn on "
-                       "'Start the daemon when needed')")
-    binary = prefs.binary_path(p)
-    if binary is None:
-        return False, ("cannot start the daemon: the sweptvol binary was not found (set its path "
-                       "in the add-on preferences); the job waits in the folder")
-    stop_daemon(folder)  # one we started there that has exited: close its log
-    log_path = os.path.join(folder, ".sweptvol-addon-daemon.log")
-    log = open(log_path, "ab")
-    proc = subprocess.Popen(exchange.daemon_command(binary, folder), stdin=subprocess.DEVNULL,
-                            stdout=log, stderr=subprocess.STDOUT)
-    _daemons[folder] = (proc, log)
-    time.sleep(0.2)
-    if proc.poll() is not None:
-        return False, f"the sweptvol daemon exited at once (status {proc.returncode}); see {log_path}"
-    return True, ""
-
-
-def stop_daemon(folder=None):
-    """Stop the daemons this add-on started (all, or the one on `folder`). SIGTERM: a daemon
-    stops its running job at a safe point, leaves it queued for its next start, and exits."""
-    for key in [k for k in _daemons if folder is None or k == folder]:
-        proc, log = _daemons.pop(key)
-        if proc.poll() is None:
-            proc.terminate()
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
-        log.close()
-
-
-atexit.register(stop_daemon)
+    return daemon.ensure(folder, prefs.binary_path(p), p.auto_start)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -221,7 +170,7 @@ def submit(context, objects, frames, options):
         partial = exchange.begin_job(folder, name)
         # Export at the first sampled frame; the rows do not depend on it (W is read back).
         set_frame(scene, frames[0])
-        glb = os.path.join(partial, "generator.glb")
+        glb = os.path.join(partial, exchange.GENERATOR_GLB)
         export_generator(context, objects, glb)
         doc, _ = exchange.read_glb(glb)
         placed = {}
@@ -277,7 +226,7 @@ def import_result(job_dir, scene=None, label=None):
         raise ValueError(f"the job {os.path.basename(job_dir)} is not done "
                          f"({exchange.describe_status(status)})")
     report = exchange.read_report(job_dir) or {}
-    points, tris = exchange.read_glb_mesh(os.path.join(job_dir, "swept.glb"))
+    points, tris = exchange.read_glb_mesh(os.path.join(job_dir, exchange.MESH))
     label = label or status.get("name") or os.path.basename(job_dir)
     obj_name = f"{label} swept volume"[:63]
     mesh = bpy.data.meshes.new(obj_name)

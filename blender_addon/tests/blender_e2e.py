@@ -253,6 +253,7 @@ def main(state):
     state["module"] = module = install_addon()
     addon = importlib.import_module(module)
     exchange = importlib.import_module(module + ".exchange")
+    state["daemon"] = daemon = importlib.import_module(module + ".daemon")
     state["operators"] = operators = importlib.import_module(module + ".operators")
     jobs = os.path.join(os.path.abspath(args.work), "jobs")
     os.makedirs(jobs, exist_ok=True)
@@ -346,10 +347,10 @@ def main(state):
     log(f"computed and imported in {time.monotonic() - t0:.1f} s")
     job = operators.JOBS[-1]
     check(job["state"] == "done", f"job state {job['state']}")
-    check(exchange.daemon_alive(jobs)[0], "the add-on did not start a daemon (no heartbeat)")
-    csv_text = open(os.path.join(job["dir"], "trajectory.csv")).read()
+    check(daemon.alive(jobs)[0], "the add-on did not start a daemon (no heartbeat)")
+    csv_text = open(os.path.join(job["dir"], exchange.TRAJECTORY)).read()
     check('"Bar, the second"' in csv_text, "the node name with a comma is not quoted in the CSV")
-    job_json = json.load(open(os.path.join(job["dir"], "job.json")))
+    job_json = json.load(open(os.path.join(job["dir"], exchange.JOB_JSON)))
     check(job_json.get("resolution") == args.resolution and job_json.get("backend") == "cpu", f"job.json {job_json}")
 
     coll = bpy.data.collections.get("Swept Volumes")
@@ -422,7 +423,7 @@ def main(state):
 
     broken = os.path.join(args.work, "broken-job")
     shutil.copytree(job["dir"], broken)
-    with open(os.path.join(broken, "swept.glb"), "r+b") as f:
+    with open(os.path.join(broken, exchange.MESH), "r+b") as f:
         f.truncate(40)
     done_message = (exchange.read_status(broken) or {}).get("message", "")
     try:
@@ -470,8 +471,8 @@ def main(state):
     # 6. Disabling the add-on stops the daemon it started
 
     bpy.ops.preferences.addon_disable(module=module)
-    daemon = exchange.read_json(os.path.join(jobs, ".sweptvol", "daemon.json")) or {}
-    check(daemon.get("state") == "stopped", f"the daemon did not stop cleanly: {daemon}")
+    beat = exchange.read_json(daemon.heartbeat_path(jobs)) or {}
+    check(beat.get("state") == "stopped", f"the daemon did not stop cleanly: {beat}")
 
     # ---------------------------------------------------------------------------------------------
     # 7. With auto_start off and no daemon, the button still submits and says no daemon runs
@@ -493,9 +494,9 @@ def main(state):
     except RuntimeError as e:
         check("no sweptvol daemon seems to be running" in str(e), f"no 'no daemon' message: {e}")
     new = [n for n in set(os.listdir(jobs)) - before if not n.startswith(".")]
-    check(len(new) == 1 and os.path.isfile(os.path.join(jobs, new[0], "trajectory.csv")),
+    check(len(new) == 1 and os.path.isfile(os.path.join(jobs, new[0], exchange.TRAJECTORY)),
           f"the job was not submitted without a daemon: {new}")
-    check(not exchange.daemon_alive(jobs)[0], "a daemon was started although auto_start is off")
+    check(not daemon.alive(jobs)[0], "a daemon was started although auto_start is off")
     log("auto_start off: job submitted, no daemon started, the user is told")
     bpy.ops.preferences.addon_disable(module=module)
     check(not hasattr(bpy.types.Scene, "sweptvol"), "disabling the add-on left Scene.sweptvol")
@@ -522,8 +523,8 @@ def run():
         verdict = f"FAIL: {type(e).__name__}: {e}"
     finally:
         try:  # never leave a daemon behind: os._exit skips the add-on's atexit hook
-            if state.get("operators") is not None:
-                state["operators"].stop_daemon()
+            if state.get("daemon") is not None:
+                state["daemon"].stop()
         except Exception:  # noqa: BLE001
             traceback.print_exc()
         log(f"{verdict} (Blender {bpy.app.version_string}, {args.mode} install, "

@@ -19,7 +19,7 @@ argv = sys.argv[sys.argv.index("--") + 1:]
 zip_path, binary, work = argv
 bpy.ops.preferences.addon_install(filepath=os.path.abspath(zip_path), overwrite=True)
 bpy.ops.preferences.addon_enable(module="sweptvol_addon")
-from sweptvol_addon import exchange, operators  # noqa: E402
+from sweptvol_addon import daemon, exchange, operators  # noqa: E402
 
 prefs = bpy.context.preferences.addons["sweptvol_addon"].preferences
 prefs.watch_folder = os.path.join(work, "jobs")
@@ -62,7 +62,7 @@ def screenshot(name):
 
 def finish(code, message):
     print(f"ui-check: {'PASS' if code == 0 else 'FAIL'}: {message}", flush=True)
-    operators.stop_daemon()
+    daemon.stop()
     os._exit(code)
 
 

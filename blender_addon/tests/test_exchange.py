@@ -233,7 +233,7 @@ def test_cancel_file(tmp_path):
     assert (tmp_path / "cancel").is_file()
 
 
-# --- status, report, daemon --------------------------------------------------------------------
+# --- status, report (the daemon's heartbeat: test_daemon.py) -------------------------------------
 
 def test_status_reading(tmp_path):
     job = str(tmp_path)
@@ -259,21 +259,6 @@ def test_result_summary_from_report():
     assert s["sweptvol_hausdorff_bound"] == 0.08 and s["sweptvol_poses"] == 34
     assert s["sweptvol_triangles"] == 500 and s["sweptvol_resolution"] == [64, 40, 30]
     assert ex.result_summary(None) == {}
-
-
-def test_daemon_liveness_from_heartbeat(tmp_path):
-    folder = str(tmp_path)
-    assert ex.daemon_alive(folder) == (False, None)
-    os.mkdir(tmp_path / ".sweptvol")
-    beat = {"state": "running", "pid": 4242, "heartbeat_at": 1000.0, "heartbeat_interval_s": 2.0}
-    (tmp_path / ".sweptvol" / "daemon.json").write_text(json.dumps(beat))
-    assert ex.daemon_alive(folder, now=1005.0) == (True, 4242)
-    assert ex.daemon_alive(folder, now=1006.5) == (False, 4242)  # three intervals old: dead
-    beat["state"] = "stopped"
-    (tmp_path / ".sweptvol" / "daemon.json").write_text(json.dumps(beat))
-    assert ex.daemon_alive(folder, now=1000.5) == (False, None)
-    assert ex.daemon_command("/bin/sweptvol", folder, "cpu") == ["/bin/sweptvol", "watch", folder, "--backend", "cpu"]
-    assert ex.daemon_command("/bin/sweptvol", folder, "auto") == ["/bin/sweptvol", "watch", folder]
 
 
 # --- packaging ----------------------------------------------------------------------------------
