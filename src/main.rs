@@ -37,6 +37,9 @@ enum Command {
     /// Check any swept-volume mesh against the generator and trajectory, trusting nothing of the
     /// sweep: containment, deviation, mesh health. Exit 0 pass, 3 certificate failed, 2 bad input.
     Verify(VerifyArgs),
+    /// Print the watched-folder protocol's names (inputs, outputs, job.json keys, states) as
+    /// JSON, for clients in other languages such as the Blender add-on.
+    Protocol,
 }
 
 #[derive(Args)]
@@ -341,6 +344,7 @@ fn main() -> ExitCode {
         Command::Run(a) => a.quiet,
         Command::Watch(a) => a.quiet,
         Command::Verify(a) => a.quiet || a.json,
+        Command::Protocol => true,
     };
     let default_level = if quiet { "warn" } else { "info" };
     tracing_subscriber::fmt()
@@ -356,6 +360,10 @@ fn main() -> ExitCode {
         Command::Run(args) => run(args).map(|()| ExitCode::SUCCESS),
         Command::Watch(args) => watch(args).map(|()| ExitCode::SUCCESS),
         Command::Verify(args) => verify(args),
+        Command::Protocol => {
+            println!("{:#}", watch::protocol::names_json());
+            Ok(ExitCode::SUCCESS)
+        }
     };
     match result {
         Ok(code) => code,

@@ -262,9 +262,11 @@ fn with_stem(stem: &str, suffix: &str) -> String {
     }
 }
 
-/// Index in [`output_paths`] of the report and of the optional start mesh.
-const REPORT: usize = 7;
-const START_MESH: usize = 8;
+/// Output names after `<stem>.` (bare in a watched job folder): the one place they are spelled
+/// (the watcher's protocol and `sweptvol protocol` take them from here).
+pub const MESH_SUFFIX: &str = "swept.glb";
+pub const START_MESH_SUFFIX: &str = "start.glb";
+pub const REPORT_SUFFIX: &str = "report.json";
 
 /// The extra formats asked for, each once, in `MeshFormat::ALL` order.
 fn also_formats(opts: &RunOptions) -> impl Iterator<Item = MeshFormat> + '_ {
@@ -273,34 +275,55 @@ fn also_formats(opts: &RunOptions) -> impl Iterator<Item = MeshFormat> + '_ {
         .filter(|f| opts.also.contains(f))
 }
 
-/// Every file `run` writes, in order: the mesh, six depth images (x, y, z; min, max), the report,
-/// with `keep_start_mesh` the unsimplified mesh, then the `also` formats.
-pub fn output_paths(opts: &RunOptions) -> anyhow::Result<Vec<PathBuf>> {
+/// Every file a run writes, by role.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct OutputPaths {
+    pub mesh: PathBuf,
+    /// Depth images x, y, z; min, max each.
+    pub depth: [PathBuf; 6],
+    pub report: PathBuf,
+    /// With `keep_start_mesh`: the unsimplified voxel boundary.
+    pub start_mesh: Option<PathBuf>,
+    /// The `also` formats, in `MeshFormat::ALL` order.
+    pub also: Vec<(MeshFormat, PathBuf)>,
+}
+
+impl OutputPaths {
+    /// All of them, in the report's order: mesh, depth images, report, start mesh, `also`.
+    pub fn all(&self) -> Vec<PathBuf> {
+        let mut out = vec![self.mesh.clone()];
+        out.extend(self.depth.iter().cloned());
+        out.push(self.report.clone());
+        out.extend(self.start_mesh.iter().cloned());
+        out.extend(self.also.iter().map(|(_, p)| p.clone()));
+        out
+    }
+}
+
+/// Every file `run` writes.
+pub fn output_paths(opts: &RunOptions) -> anyhow::Result<OutputPaths> {
     let stem = output_stem(opts)?;
-    let mut out = vec![opts.out_dir.join(with_stem(&stem, "swept.glb"))];
-    for axis in 0..3 {
-        for side in [Side::Min, Side::Max] {
-            out.push(
-                opts.out_dir
-                    .join(exr_depth::depth_file_name(&stem, axis, side)),
-            );
-        }
-    }
-    out.push(opts.out_dir.join(with_stem(&stem, "report.json")));
-    if opts.keep_start_mesh {
-        out.push(opts.out_dir.join(with_stem(&stem, "start.glb")));
-    }
-    for f in also_formats(opts) {
-        out.push(opts.out_dir.join(with_stem(&stem, f.suffix())));
-    }
-    Ok(out)
+    let at = |suffix: &str| opts.out_dir.join(with_stem(&stem, suffix));
+    // x, y, z; min, max each: the order of `exr_depth::stage_all`.
+    let depth = std::array::from_fn(|i| {
+        let side = [Side::Min, Side::Max][i % 2];
+        opts.out_dir
+            .join(exr_depth::depth_file_name(&stem, i / 2, side))
+    });
+    Ok(OutputPaths {
+        mesh: at(MESH_SUFFIX),
+        depth,
+        report: at(REPORT_SUFFIX),
+        start_mesh: opts.keep_start_mesh.then(|| at(START_MESH_SUFFIX)),
+        also: also_formats(opts).map(|f| (f, at(f.suffix()))).collect(),
+    })
 }
 
 /// A job whose inputs are read and checked and whose sweep input is built: everything that can
 /// fail because of the user's files has failed by now, and nothing has been written.
 pub struct Prepared {
     pub opts: RunOptions,
-    pub outputs: Vec<PathBuf>,
+    pub outputs: OutputPaths,
     pub input: SweepInput,
     pub warnings: Vec<String>,
     read_secs: f64,
@@ -311,9 +334,9 @@ pub struct Prepared {
 pub fn prepare(opts: &RunOptions) -> anyhow::Result<Prepared> {
     let t0 = Instant::now();
     let outputs = output_paths(opts)?;
-    refuse_outputs_on_inputs(opts, &outputs)?;
+    refuse_outputs_on_inputs(opts, &outputs.all())?;
     if !opts.overwrite {
-        if let Some(existing) = outputs.iter().find(|p| p.exists()) {
+        if let Some(existing) = outputs.all().iter().find(|p| p.exists()) {
             return Err(crate::error::UsageError::new(format!(
                 "{} already exists; pass --overwrite to replace the outputs, or choose another --out or --name",
                 existing.display()
@@ -508,11 +531,11 @@ pub fn execute(
     // an error leaves nothing behind and never mixes old and new outputs.
     let mut staged = atomic::Staged::default();
     let files = exr_depth::stage_all(&mut staged, &opts.out_dir, &stem, &images, &extra)?;
-    debug_assert_eq!(files, job.outputs[1..7]);
+    debug_assert_eq!(files, job.outputs.depth);
     let secs = |a: Instant, b: Instant| (b - a).as_secs_f64();
     let eps_voxel = half_diag * h;
     let mesh_report = MeshReport {
-        file: job.outputs[0].clone(),
+        file: job.outputs.mesh.clone(),
         triangles_start,
         triangles_final: mesh.triangles.len() as u64,
         vertices: mesh.positions.len() as u64,
@@ -548,12 +571,11 @@ pub fn execute(
         format!("{stem} swept volume").trim_start(),
         extras,
     )?;
-    staged.write(&job.outputs[0], &glb)?;
-    if let Some(start_glb) = start_glb {
-        staged.write(&job.outputs[START_MESH], &start_glb)?;
+    staged.write(&job.outputs.mesh, &glb)?;
+    if let (Some(start_glb), Some(path)) = (start_glb, &job.outputs.start_mesh) {
+        staged.write(path, &start_glb)?;
     }
-    let first_also = job.outputs.len() - also_formats(opts).count();
-    for (f, path) in also_formats(opts).zip(&job.outputs[first_also..]) {
+    for (f, path) in &job.outputs.also {
         let name = format!("{stem} swept volume");
         staged.write(path, &f.bytes(&mesh, &input.grid, name.trim_start()))?;
     }
@@ -602,7 +624,7 @@ pub fn execute(
             total: job.read_secs + job.setup_secs + secs(t_setup, Instant::now()),
             posed_triangles_per_second: input.posed_triangles() as f64 / sweep_secs.max(1e-9),
         },
-        outputs: job.outputs.clone(),
+        outputs: job.outputs.all(),
         depth_images: DepthImagesReport {
             layout: format!(
                 "one EXR per axis and side; channel Z = world distance from the camera plane (the grid face the image is named after) along the view direction, rounded toward the camera; channel Y = 1 - Z / grid extent for viewers; columns along {} and rows (top first) along {} for axes x, y, z",
@@ -616,10 +638,10 @@ pub fn execute(
         warnings,
     };
     let json = serde_json::to_vec_pretty(&report)?;
-    staged.write(&job.outputs[REPORT], &json)?;
+    staged.write(&job.outputs.report, &json)?;
     if !opts.overwrite {
         // Checked again: a long sweep gives another process time to write the same names.
-        if let Some(existing) = job.outputs.iter().find(|p| p.exists()) {
+        if let Some(existing) = job.outputs.all().iter().find(|p| p.exists()) {
             bail!(
                 "{} appeared while sweeping; nothing was written (pass --overwrite to replace it)",
                 existing.display()

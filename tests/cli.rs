@@ -346,3 +346,57 @@ fn also_writes_stl_ply_and_obj_of_the_same_mesh() {
     assert_eq!(o.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&o.stderr).contains("step"));
 }
+
+/// `sweptvol protocol` names exactly what a run writes (for clients in other languages).
+#[test]
+fn protocol_names_are_the_files_a_run_writes() {
+    let o = sweptvol(&["protocol"]);
+    assert!(o.status.success());
+    let names: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let out = &names["outputs"];
+    let mut want: Vec<String> = ["mesh", "start_mesh", "report"]
+        .iter()
+        .map(|k| out[k].as_str().unwrap().to_string())
+        .collect();
+    want.extend(
+        out["depth_images"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_str().unwrap().to_string()),
+    );
+    want.extend(
+        out["also"]
+            .as_object()
+            .unwrap()
+            .values()
+            .map(|v| v.as_str().unwrap().to_string()),
+    );
+    want.sort();
+
+    let dir = tempfile::tempdir().unwrap();
+    let g = write_gltf(dir.path(), "part.gltf", &["part"], None);
+    let t = write(dir.path(), "part.csv", GOOD_CSV);
+    let res = dir.path().join("results");
+    let mut args = run_args(
+        g.to_str().unwrap(),
+        t.to_str().unwrap(),
+        res.to_str().unwrap(),
+    );
+    args.extend(["--keep-start-mesh", "--also", "stl,ply,obj"]);
+    let o = sweptvol(&args);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let mut written: Vec<String> = fs::read_dir(&res)
+        .unwrap()
+        .map(|e| {
+            e.unwrap()
+                .file_name()
+                .to_string_lossy()
+                .trim_start_matches("part.")
+                .to_string()
+        })
+        .collect();
+    written.sort();
+    assert_eq!(written, want);
+    assert_eq!(names["job_files"]["job_json"], "job.json");
+}

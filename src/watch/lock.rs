@@ -62,7 +62,7 @@ pub fn acquire(root: &Path) -> anyhow::Result<DaemonLock> {
         .truncate(false)
         .open(&lock_path)
         .with_context(|| format!("could not open {}", lock_path.display()))?;
-    let info_path = dir.join("daemon.json");
+    let info_path = dir.join(super::protocol::HEARTBEAT_FILE);
     if !try_lock(&file).with_context(|| format!("could not lock {}", lock_path.display()))? {
         let holder = fs::read(&info_path)
             .ok()

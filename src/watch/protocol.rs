@@ -7,8 +7,9 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::InputError;
 use crate::grid::{Accuracy, Overrides};
+use crate::io::exr_depth::{depth_file_name, Side};
 use crate::io::mesh_formats::MeshFormat;
-use crate::pipeline::{BackendChoice, RunOptions};
+use crate::pipeline::{self, BackendChoice, RunOptions};
 
 /// A folder being written by a client: never read. Renaming it without the suffix commits it.
 pub const PARTIAL_SUFFIX: &str = ".partial";
@@ -24,34 +25,80 @@ pub const GENERATOR_GLTF: &str = "generator.gltf";
 pub const DROP_GENERATOR_EXT: &str = "glb";
 pub const DROP_TRAJECTORY_EXT: &str = "csv";
 
-/// Names the daemon writes: bare in a job folder, `<name>.`-prefixed for a drop. A file with
-/// one of these names (bare or prefixed) is never taken as an input.
-pub const OUTPUT_NAMES: [&str; 13] = [
-    "swept.glb",
-    "swept.stl",
-    "swept.ply",
-    "swept.obj",
-    "start.glb",
-    "depth-xmin.exr",
-    "depth-xmax.exr",
-    "depth-ymin.exr",
-    "depth-ymax.exr",
-    "depth-zmin.exr",
-    "depth-zmax.exr",
-    "report.json",
-    "status.json",
-];
-
 /// The status file's bare name (`<name>.status.json` for a drop).
 pub const STATUS: &str = "status.json";
+/// The daemon's heartbeat inside `CONTROL_DIR`.
+pub const HEARTBEAT_FILE: &str = "daemon.json";
+
+/// Names the daemon writes (the run's outputs, spelled in `pipeline`, and the status file):
+/// bare in a job folder, `<name>.`-prefixed for a drop. A file with one of these names (bare or
+/// prefixed) is never taken as an input.
+pub fn output_names() -> Vec<String> {
+    let mut names: Vec<String> = [
+        pipeline::MESH_SUFFIX,
+        pipeline::START_MESH_SUFFIX,
+        pipeline::REPORT_SUFFIX,
+        STATUS,
+    ]
+    .map(String::from)
+    .to_vec();
+    names.extend(MeshFormat::ALL.map(|f| f.suffix().to_string()));
+    names.extend(depth_image_names());
+    names
+}
+
+/// The six depth images' bare names: x, y, z; min, max each.
+pub fn depth_image_names() -> Vec<String> {
+    (0..3)
+        .flat_map(|axis| Side::BOTH.map(|side| depth_file_name("", axis, side)))
+        .collect()
+}
 
 /// Whether `name` is something the daemon writes (bare or `<stem>.`-prefixed).
 pub fn is_output_name(name: &str) -> bool {
-    OUTPUT_NAMES.iter().any(|o| {
-        name == *o
+    output_names().iter().any(|o| {
+        name == o
             || name
-                .strip_suffix(o)
+                .strip_suffix(o.as_str())
                 .is_some_and(|stem| stem.len() > 1 && stem.ends_with('.'))
+    })
+}
+
+/// Every name of the protocol, for clients in other languages (`sweptvol protocol` prints it;
+/// the Blender add-on's tests compare their own constants with it).
+pub fn names_json() -> serde_json::Value {
+    let also: serde_json::Map<String, serde_json::Value> = MeshFormat::ALL
+        .iter()
+        .map(|f| {
+            let key = serde_json::to_value(f).expect("a name");
+            (
+                key.as_str().expect("a string").to_string(),
+                f.suffix().into(),
+            )
+        })
+        .collect();
+    serde_json::json!({
+        "partial_suffix": PARTIAL_SUFFIX,
+        "control_dir": CONTROL_DIR,
+        "heartbeat": HEARTBEAT_FILE,
+        "job_files": {
+            "generator_glb": GENERATOR_GLB,
+            "generator_gltf": GENERATOR_GLTF,
+            "trajectory": TRAJECTORY,
+            "job_json": JOB_JSON,
+            "cancel": CANCEL,
+        },
+        "outputs": {
+            "mesh": pipeline::MESH_SUFFIX,
+            "start_mesh": pipeline::START_MESH_SUFFIX,
+            "report": pipeline::REPORT_SUFFIX,
+            "status": STATUS,
+            "depth_images": depth_image_names(),
+            "also": also,
+        },
+        "job_keys": JOB_KEY_LIST,
+        "states": State::ALL.map(State::as_str),
+        "finished_states": State::ALL.into_iter().filter(|s| s.is_finished()).map(State::as_str).collect::<Vec<_>>(),
     })
 }
 
@@ -169,6 +216,14 @@ pub enum State {
 }
 
 impl State {
+    pub const ALL: [State; 5] = [
+        State::Queued,
+        State::Running,
+        State::Done,
+        State::Failed,
+        State::Cancelled,
+    ];
+
     pub fn as_str(self) -> &'static str {
         match self {
             State::Queued => "queued",
@@ -267,8 +322,18 @@ pub struct JobOptions {
     pub also: Option<Vec<MeshFormat>>,
 }
 
-const JOB_KEYS: &str =
-    "resolution, tolerance, delta, epsilon, backend, name, target_triangles, keep_start_mesh, also";
+/// The keys of `job.json`, as `JobOptions` names its fields.
+pub const JOB_KEY_LIST: [&str; 9] = [
+    "resolution",
+    "tolerance",
+    "delta",
+    "epsilon",
+    "backend",
+    "name",
+    "target_triangles",
+    "keep_start_mesh",
+    "also",
+];
 
 /// Parse `job.json` bytes; `path` names the file in errors (with serde_json's line and column).
 pub fn parse_job_options(path: &Path, bytes: &[u8]) -> Result<JobOptions, InputError> {
@@ -277,7 +342,8 @@ pub fn parse_job_options(path: &Path, bytes: &[u8]) -> Result<JobOptions, InputE
             path,
             format!("invalid job options: {e}"),
             format!(
-                "write one JSON object using only the keys {JOB_KEYS} (docs/exchange-protocol.md)"
+                "write one JSON object using only the keys {} (docs/exchange-protocol.md)",
+                JOB_KEY_LIST.join(", ")
             ),
         )
         .at_line(e.line() as u64)
@@ -376,6 +442,18 @@ mod tests {
         assert!(parse_job_options(p, br#"{"also": ["step"]}"#).is_err());
         for f in MeshFormat::ALL {
             assert!(is_output_name(f.suffix()), "{f:?}");
+        }
+        // Every key the protocol lists is one job.json takes (serde's names of JobOptions).
+        for key in JOB_KEY_LIST {
+            let value = match key {
+                "backend" => "\"cpu\"",
+                "name" => "\"x\"",
+                "keep_start_mesh" => "true",
+                "also" => "[\"stl\"]",
+                _ => "1",
+            };
+            let json = format!("{{\"{key}\": {value}}}");
+            assert!(parse_job_options(p, json.as_bytes()).is_ok(), "{json}");
         }
     }
 }

@@ -335,7 +335,7 @@ fn check_size(
 /// the job writes its own, so nothing stale lingers. The status file's temporaries of this
 /// process may be in use and are kept.
 fn remove_stale_temporaries(opts: &pipeline::RunOptions, status: &Path) -> anyhow::Result<()> {
-    let mut outputs = pipeline::output_paths(opts)?;
+    let mut outputs = pipeline::output_paths(opts)?.all();
     outputs.push(status.to_path_buf());
     let prefixes: Vec<String> = outputs
         .iter()
