@@ -17,6 +17,14 @@ use sweptvol::mesh::extract::extract;
 use sweptvol::mesh::manifold::Joined;
 use sweptvol::mesh::Mesh;
 
+/// The test Python with trimesh and manifold3d, or a loud skip (a failure under CI's settings).
+fn python() -> Option<String> {
+    common::test_python(
+        "trimesh, manifold3d, numpy",
+        "the downstream-tool manifold check",
+    )
+}
+
 /// Run the checker on `files`; its exit status and output.
 fn check(python: &str, files: &[PathBuf]) -> (bool, String) {
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/manifold_check.py");
@@ -53,12 +61,7 @@ fn random_set(rng: &mut Rng, dims: [usize; 3], density: f64) -> DenseSet {
 
 #[test]
 fn joined_voxel_sets_are_solids_to_trimesh_and_manifold3d() {
-    let Some(python) = common::test_python(
-        "trimesh, manifold3d, numpy",
-        "the downstream-tool manifold check",
-    ) else {
-        return;
-    };
+    let Some(python) = python() else { return };
     let dir = tempfile::tempdir().unwrap();
     let mut rng = Rng(0x5eed_1234_abcd_0001);
     let mut sets = vec![
@@ -121,12 +124,7 @@ fn write_job(dir: &Path, name: &str, mesh: &Mesh, poses: &[glam::DMat4]) -> (Pat
 
 #[test]
 fn random_sweeps_are_solids_to_trimesh_and_manifold3d() {
-    let Some(python) = common::test_python(
-        "trimesh, manifold3d, numpy",
-        "the downstream-tool manifold check",
-    ) else {
-        return;
-    };
+    let Some(python) = python() else { return };
     let dir = tempfile::tempdir().unwrap();
     let mut rng = Rng(0x0dd_ba11_2024_0003);
     let mut outputs = Vec::new();
