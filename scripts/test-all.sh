@@ -29,11 +29,11 @@ command -v node >/dev/null 2>&1 || missing+=(nodejs)
 command -v npm >/dev/null 2>&1 || missing+=(npm)
 if ((${#missing[@]})); then apt_install "${missing[@]}"; else echo "all present"; fi
 
-say "Python venv: the independent EXR reader, pytest, trimesh and manifold3d (downstream-tool check)"
+say "Python venv: the independent EXR reader, pytest, trimesh and manifold3d (downstream-tool check), ruff"
 venv=target/test-venv
-if ! "$venv/bin/python" -c 'import OpenEXR, numpy, pytest, trimesh, manifold3d' 2>/dev/null; then
+if ! "$venv/bin/python" -c 'import OpenEXR, numpy, pytest, trimesh, manifold3d, ruff' 2>/dev/null; then
     python3 -m venv "$venv"
-    "$venv/bin/pip" install -q --disable-pip-version-check OpenEXR numpy pytest trimesh manifold3d
+    "$venv/bin/pip" install -q --disable-pip-version-check OpenEXR numpy pytest trimesh manifold3d ruff
 fi
 
 say "Khronos glTF validator (npm)"
@@ -43,6 +43,8 @@ export SWEPTVOL_TEST_PYTHON="$PWD/$venv/bin/python"
 export SWEPTVOL_REQUIRE_GPU=1     # a missing adapter fails the GPU tests instead of skipping
 export SWEPTVOL_REQUIRE_PYTHON=1  # likewise for the independent EXR reader
 export SWEPTVOL_REQUIRE_VALIDATOR=1  # and for the glTF validator
+export SWEPTVOL_BIN="$PWD/target/release/sweptvol"  # the add-on's pytest files start this one
+export SWEPTVOL_REQUIRE_BIN=1     # and fail, not skip, where it is missing
 export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-/tmp/xdg-runtime-$(id -u)}"
 mkdir -p "$XDG_RUNTIME_DIR" && chmod 700 "$XDG_RUNTIME_DIR"
 
@@ -50,6 +52,7 @@ say "format, lints and docs"
 cargo fmt --all -- --check
 cargo clippy --all-targets --locked -- -D warnings
 RUSTDOCFLAGS="-D warnings" cargo doc --no-deps --locked --quiet  # a renamed item breaks a doc link
+"$venv/bin/python" -m ruff check blender_addon tests/*.py  # the Python side (ruff.toml)
 
 say "tests (GPU path on whatever adapter wgpu finds: lavapipe here)"
 cargo test --all-targets --locked
@@ -69,9 +72,10 @@ bound=$("$venv/bin/python" -c 'import json, sys; print(json.load(open(sys.argv[1
 target/release/sweptvol verify --generator examples/bunny.glb --trajectory examples/bunny-vibration.csv \
     --mesh target/example-results/bunny-vibration.swept.glb --bound "$bound" --bound-scope axis-visible --quiet
 
-say "Blender add-on: exchange and version-handling code (pytest, no Blender)"
+say "Blender add-on: exchange, daemon control, version handling, names vs the binary's (pytest, no Blender)"
 "$venv/bin/python" -m pytest -q -p no:cacheprovider blender_addon/tests/test_exchange.py \
-    blender_addon/tests/test_compat.py
+    blender_addon/tests/test_compat.py blender_addon/tests/test_daemon.py \
+    blender_addon/tests/test_protocol_names.py
 
 say "Blender add-on: Blender 3.4, 4.2, 4.5, 5.0, legacy and extension installs, headless, real daemon"
 # Debian's Blender 3.4 needs numpy (the add-on and its glTF exporter import it); the PyPI bpy

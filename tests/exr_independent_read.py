@@ -10,8 +10,9 @@ An independent check of the files `src/io/exr_depth.rs` writes. Needs the PyPI p
 Output keys: channels (names, sorted), dtypes (numpy dtype per channel), width, height,
 z_min / z_max (over finite Z, world units; null if none), inf_count (pixels with Z = +inf),
 z_bits (every Z as its float32 bit pattern, row-major from the top row, so a comparison is exact
-and keeps infinities), meta (the `sweptvol:meta` JSON text), attributes (the other `sweptvol:*` header attributes:
-text as str, doubles as float; OpenEXR itself gives doubles as numpy arrays of shape (1,)).
+and keeps infinities), meta (the `sweptvol:meta` JSON text), attributes (the other `sweptvol:*`
+header attributes: text as str, doubles as float; OpenEXR itself gives doubles as numpy arrays of
+shape (1,)).
 """
 
 import json

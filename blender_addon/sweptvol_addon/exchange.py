@@ -196,7 +196,8 @@ def read_glb_mesh(path):
                 idx = [i[0] for i in _accessor(doc, binary, prim["indices"])]
             else:
                 idx = list(range(len(pos)))
-            tris.extend((base + idx[k], base + idx[k + 1], base + idx[k + 2]) for k in range(0, len(idx) - 2, 3))
+            tris.extend((base + idx[k], base + idx[k + 1], base + idx[k + 2])
+                        for k in range(0, len(idx) - 2, 3))
     return points, tris
 
 
@@ -319,7 +320,8 @@ def write_job_inputs(partial, csv_text, options):
     """Write trajectory.csv and job.json into a `.partial` folder (generator.glb is written by
     the exporter beside them)."""
     _write_file(os.path.join(partial, TRAJECTORY), csv_text.encode("utf-8"))
-    _write_file(os.path.join(partial, JOB_JSON), (json.dumps(job_options(**options), indent=1) + "\n").encode())
+    job_json = json.dumps(job_options(**options), indent=1) + "\n"
+    _write_file(os.path.join(partial, JOB_JSON), job_json.encode())
 
 
 def commit_job(partial):

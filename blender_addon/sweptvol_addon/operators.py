@@ -182,7 +182,7 @@ def submit(context, objects, frames, options):
                 raise ValueError(f"the glTF exporter wrote {len(placed.get(o.name, []))} mesh nodes "
                                  f"named '{o.name}' (expected one)")
             w = placed[o.name][0]
-            for f, m in zip(frames, worlds[o.name]):
+            for f, m in zip(frames, worlds[o.name], strict=True):  # one matrix per frame
                 rows.append((f, o.name, exchange.trajectory_row(m, w)))
         options = dict(options, name=label[:200])
         exchange.write_job_inputs(partial, exchange.trajectory_csv(rows), options)

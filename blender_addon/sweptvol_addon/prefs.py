@@ -6,8 +6,6 @@ import tempfile
 
 import bpy
 
-from . import exchange
-
 
 def addon_name():
     return __package__

@@ -10,8 +10,8 @@ Installs the add-on zip into the (fresh) profile, the legacy way (preferences.ad
 addon_enable, module `sweptvol_addon`) or as an extension (extensions.package_install_files, module
 `bl_ext.user_default.sweptvol_addon`; 4.2+), builds a scene with two animated
 objects (one parented, with keyed translation and rotation and a scale that is not 1, one with a
-rigid modifier and a constraint), presses `sweptvol.compute` (the add-on starts the daemon itself), and checks in
-Blender's world coordinates, at every sampled frame:
+rigid modifier and a constraint), presses `sweptvol.compute` (the add-on starts the daemon
+itself), and checks in Blender's world coordinates, at every sampled frame:
   1. every vertex (and face centre) of every posed object is inside the imported mesh
      (generalized winding number >= 0.5);
   2. every vertex of the imported mesh is within the reported bound of the posed objects;
@@ -335,7 +335,8 @@ def main(state):
         msg = str(e)
         log("refused as expected:", msg.strip())
         check("'Blob'" in msg and "shape keys" in msg, f"the refusal should name Blob and shape keys: {msg}")
-    check(not [n for n in os.listdir(jobs) if not n.startswith(".")], f"a refused job left files: {os.listdir(jobs)}")
+    check(not [n for n in os.listdir(jobs) if not n.startswith(".")],
+          f"a refused job left files: {os.listdir(jobs)}")
 
     # ---------------------------------------------------------------------------------------------
     # 2. Compute: export -> job folder -> daemon (started by the add-on) -> import
@@ -351,10 +352,12 @@ def main(state):
     csv_text = open(os.path.join(job["dir"], exchange.TRAJECTORY)).read()
     check('"Bar, the second"' in csv_text, "the node name with a comma is not quoted in the CSV")
     job_json = json.load(open(os.path.join(job["dir"], exchange.JOB_JSON)))
-    check(job_json.get("resolution") == args.resolution and job_json.get("backend") == "cpu", f"job.json {job_json}")
+    check(job_json.get("resolution") == args.resolution and job_json.get("backend") == "cpu",
+          f"job.json {job_json}")
 
     coll = bpy.data.collections.get("Swept Volumes")
-    check(coll is not None and coll.name in scene.collection.children, "no 'Swept Volumes' collection in the scene")
+    check(coll is not None and coll.name in scene.collection.children,
+          "no 'Swept Volumes' collection in the scene")
     check(len(coll.objects) == 1, f"expected one imported object, got {[o.name for o in coll.objects]}")
     swept = coll.objects[0]
     check("Part" in swept.name, f"the imported object is not named after the source: {swept.name}")
@@ -430,7 +433,8 @@ def main(state):
         bpy.ops.sweptvol.import_result(job=broken)
         raise AssertionError("importing a truncated swept.glb should fail")
     except RuntimeError as e:
-        check("importing the swept volume failed" in str(e) and (not done_message or done_message not in str(e)),
+        check("importing the swept volume failed" in str(e)
+              and (not done_message or done_message not in str(e)),
               f"not the import's own error: {e}")
         log("import failure reported:", str(e).strip())
     fake = dict(job, dir=broken, state="running", line="running", error="")

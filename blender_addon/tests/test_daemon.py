@@ -101,7 +101,8 @@ def test_heartbeat_interval_defaults_and_garbage(folder):
 
 
 def test_command():
-    assert daemon.command("/bin/sweptvol", "/w", "cpu") == ["/bin/sweptvol", "watch", "/w", "--backend", "cpu"]
+    assert daemon.command("/bin/sweptvol", "/w", "cpu") == [
+        "/bin/sweptvol", "watch", "/w", "--backend", "cpu"]
     assert daemon.command("/bin/sweptvol", "/w", "auto") == ["/bin/sweptvol", "watch", "/w"]
     assert daemon.command("/bin/sweptvol", "/w") == ["/bin/sweptvol", "watch", "/w"]
 
