@@ -16,11 +16,11 @@ use std::path::Path;
 use std::time::Instant;
 
 use glam::{DMat4, DQuat, DVec3, Vec3};
-use sweptvol::grid::{Accuracy, Overrides};
+use sweptvol::input::grid::{Accuracy, Overrides};
+use sweptvol::input::model::{Generator, Trajectory};
+use sweptvol::input::posed;
 use sweptvol::io::gltf_in;
-use sweptvol::job;
-use sweptvol::model::{Generator, Trajectory};
-use sweptvol::pipeline::{Backend, BackendChoice};
+use sweptvol::sweep::backend::{Backend, BackendChoice};
 use sweptvol::sweep::Silent;
 
 /// Split every edge of every triangle into `k` parts (k² triangles each).
@@ -121,7 +121,7 @@ fn main() -> anyhow::Result<()> {
         .fold(Vec3::MIN, |m, p| m.max(*p));
     let size = (hi - lo).max_element() as f64;
     let traj = Trajectory::whole_scene(&poses(&workload, size, count));
-    let input = job::build(
+    let input = posed::build(
         &g,
         Path::new("dragon"),
         &traj,

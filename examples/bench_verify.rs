@@ -14,8 +14,9 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use glam::{DQuat, DVec3, Vec3};
-use sweptvol::grid::{Accuracy, Overrides};
-use sweptvol::pipeline::{self, Backend, BackendChoice, RunOptions};
+use sweptvol::input::grid::{Accuracy, Overrides};
+use sweptvol::pipeline::{self, RunOptions};
+use sweptvol::sweep::backend::{Backend, BackendChoice};
 use sweptvol::sweep::Silent;
 use sweptvol::verify::{self, VerifyOptions};
 

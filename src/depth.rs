@@ -11,7 +11,7 @@
 //! through grid point (u, v) = (col + ½, height - 1 - row + ½).
 //! An empty pixel (no offset met) has min = +inf and max = -inf.
 
-use crate::grid::Grid;
+use crate::input::grid::Grid;
 
 /// Image-plane axes per ray axis: columns along these...
 pub const COLUMN_AXIS: [usize; 3] = [2, 0, 0];
@@ -82,16 +82,68 @@ impl DepthImages {
     }
 
     /// Decode images from the sweep's atomic buffers: per axis, pairs (enc(min), enc(max)) in
-    /// pixel order (see `sweep::offset::encode`).
+    /// pixel order (see [`encode`]).
     pub fn from_encoded(grid: Grid, encoded: [Vec<u32>; 3]) -> Self {
         let mut out = DepthImages::empty(grid);
         for (img, enc) in out.images.iter_mut().zip(encoded) {
             assert_eq!(enc.len(), 2 * img.min.len(), "encoded buffer size");
             for (i, pair) in enc.chunks_exact(2).enumerate() {
-                img.min[i] = crate::sweep::offset::decode(pair[0]);
-                img.max[i] = crate::sweep::offset::decode(pair[1]);
+                img.min[i] = decode(pair[0]);
+                img.max[i] = decode(pair[1]);
             }
         }
         out
+    }
+}
+
+/// The sweep's encoded buffers, per image: [`SLOTS`] u32 per pixel, enc(D⁻) then enc(D⁺).
+pub const SLOTS: usize = 2;
+/// Encoded value an empty D⁻ slot starts at (enc(+inf)); D⁺ starts at enc(-inf).
+pub const EMPTY_MIN: u32 = 0xFF80_0000;
+pub const EMPTY_MAX: u32 = 0x007F_FFFF;
+
+/// Order-preserving map from f32 to u32: a < b (as floats, no NaN) iff enc(a) < enc(b) (as u32).
+/// Lets atomic min/max on u32 act as min/max on depths. Same as `encode_depth` in the shader.
+pub fn encode(x: f32) -> u32 {
+    let b = x.to_bits();
+    if b & 0x8000_0000 != 0 {
+        !b
+    } else {
+        b | 0x8000_0000
+    }
+}
+
+/// Inverse of [`encode`].
+pub fn decode(e: u32) -> f32 {
+    if e & 0x8000_0000 != 0 {
+        f32::from_bits(e & 0x7FFF_FFFF)
+    } else {
+        f32::from_bits(!e)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn encoding_preserves_order() {
+        let xs = [
+            f32::NEG_INFINITY,
+            -1e30,
+            -2.5,
+            -1e-40,
+            -0.0,
+            0.0,
+            1e-40,
+            0.5,
+            3.0,
+            1e30,
+            f32::INFINITY,
+        ];
+        for w in xs.windows(2) {
+            assert!(encode(w[0]) <= encode(w[1]), "{} vs {}", w[0], w[1]);
+            assert_eq!(decode(encode(w[1])).to_bits(), w[1].to_bits());
+        }
     }
 }

@@ -3,27 +3,26 @@
 //! The modules follow the data, one way (docs/design.md has the arguments):
 //!
 //! - [`io`]: the only code that touches files: glTF and CSV in, EXR, glTF, STL, PLY, OBJ out.
-//! - [`model`], [`job`], [`grid`], [`memory`]: parts and poses become the sweep's input in grid
-//!   units, with the voxel grid, the parameters (δ, ε) and the f32 rounding term ρ.
+//! - [`input`]: parts and poses become the sweep's input in grid units, with the voxel grid, the
+//!   parameters (δ, ε), the f32 rounding term ρ and the memory estimate.
 //! - [`sweep`]: the δ-offset of every posed triangle ray cast into six depth images, on the GPU
-//!   (wgpu) or its CPU twin (paper section 4).
-//! - [`depth`]: the six images, the contract between the sweep and the mesh stage.
+//!   (wgpu) or its CPU twin (paper section 4); [`sweep::backend`] chooses which.
+//! - [`depth`]: the six images and their encoding, the contract between the sweep and the mesh
+//!   stage (it imports nothing from `sweep`).
 //! - [`mesh`]: voxels classified by condition ⋆ ([`mesh::classify`]), pinches joined so the
 //!   boundary is a 2-manifold ([`mesh::manifold`]), the voxel boundary extracted
 //!   ([`mesh::extract`]).
 //! - [`simplify`]: edge collapses inside the tolerance volume (paper section 5), with its own
 //!   band, sweep and self-intersection tests.
-//! - [`pipeline`]: one run, files in to files out; [`watch`] and `main.rs` are its shells.
+//! - [`pipeline`]: one run, files in to files out, with its named outputs and its report;
+//!   [`watch`] and `main.rs` are its shells.
 //! - [`verify`]: an independent certificate for any swept-volume mesh.
 
 pub mod depth;
 pub mod error;
-pub mod grid;
+pub mod input;
 pub mod io;
-pub mod job;
-pub mod memory;
 pub mod mesh;
-pub mod model;
 pub mod pipeline;
 pub mod simplify;
 pub mod sweep;

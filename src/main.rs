@@ -10,8 +10,9 @@ use clap::{Args, Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 
 use sweptvol::error::{self, UsageError};
-use sweptvol::grid::{Accuracy, Overrides};
-use sweptvol::pipeline::{self, Backend, BackendChoice, RunOptions};
+use sweptvol::input::grid::{Accuracy, Overrides};
+use sweptvol::pipeline::{self, RunOptions};
+use sweptvol::sweep::backend::{Backend, BackendChoice};
 use sweptvol::sweep::Observer;
 use sweptvol::verify::BoundScope;
 use sweptvol::watch::{self, WatchOptions};

@@ -9,11 +9,11 @@ use std::process::Command;
 
 use common::{check_samples, posed_grid_triangles, Rng};
 use glam::{DMat4, DVec3};
-use sweptvol::grid::{Accuracy, Overrides};
+use sweptvol::input::grid::{Accuracy, Overrides};
+use sweptvol::input::model::Trajectory;
+use sweptvol::input::posed;
 use sweptvol::io::exr_depth::{self, ExtraMeta, Side};
 use sweptvol::io::gltf_in;
-use sweptvol::job;
-use sweptvol::model::Trajectory;
 use sweptvol::sweep::{cpu, Silent};
 
 #[test]
@@ -26,7 +26,7 @@ fn exr_round_trip_is_outward_and_independently_readable() {
         })
         .collect();
     let traj = Trajectory::whole_scene(&poses);
-    let input = job::build(
+    let input = posed::build(
         &generator,
         Path::new("bunny.glb"),
         &traj,

@@ -236,7 +236,7 @@ fn job_options_reader_never_panics_or_hangs() {
 #[test]
 fn depth_exr_reader_never_panics_or_hangs() {
     use sweptvol::depth::DepthImages;
-    use sweptvol::grid::Grid;
+    use sweptvol::input::grid::Grid;
     use sweptvol::io::exr_depth::{read_depth_exr, write_depth_exr, ExtraMeta, Side};
 
     let dir = tempfile::tempdir().unwrap();

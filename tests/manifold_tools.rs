@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use common::Rng;
-use sweptvol::grid::Grid;
+use sweptvol::input::grid::Grid;
 use sweptvol::io::gltf_out;
 use sweptvol::mesh::classify::DenseSet;
 use sweptvol::mesh::extract::extract;

@@ -14,12 +14,12 @@ use common::{
 };
 use glam::{DMat4, DVec3};
 use sweptvol::depth::DepthImages;
+use sweptvol::input::model::Generator;
+use sweptvol::input::posed::SweepInput;
 use sweptvol::io::{gltf_in, gltf_out};
-use sweptvol::job::SweepInput;
 use sweptvol::mesh::classify::Classifier;
 use sweptvol::mesh::extract::extract;
 use sweptvol::mesh::Mesh;
-use sweptvol::model::Generator;
 use sweptvol::simplify::{simplify, SimplifyOptions};
 use sweptvol::sweep::{cpu, Silent};
 

@@ -104,7 +104,7 @@ fn ray_cast_contains_exact_offset_and_stays_tight() {
         let mut rng = Rng(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1);
         let far = [10.0, 1500.0, 16000.0][(seed % 3) as usize];
         let d = if seed % 2 == 0 {
-            sweptvol::grid::K_DELTA
+            sweptvol::input::grid::K_DELTA
         } else {
             rng.range(0.9, 3.0)
         };
@@ -177,7 +177,7 @@ fn ray_cast_contains_exact_offset_and_stays_tight() {
 
 /// Containment of the exact δ interval in the computed (δ + ρ) one for one triangle and ray.
 fn assert_contains(abs: [[f32; 3]; 3], pu: f64, pv: f64, n: f64) {
-    let d = sweptvol::grid::K_DELTA;
+    let d = sweptvol::input::grid::K_DELTA;
     let rho = budget(n + 2.0 * d);
     let tri: [V3; 3] = abs.map(|v| [v[0] as f64 - pu, v[1] as f64 - pv, v[2] as f64]);
     let (t0, t1) =

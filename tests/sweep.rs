@@ -10,9 +10,9 @@ use common::{
 };
 use glam::{DMat4, DVec3};
 use sweptvol::depth::{DepthImages, COLUMN_AXIS, ROW_AXIS};
-use sweptvol::grid::{Accuracy, Overrides};
-use sweptvol::job::{self, SweepInput};
-use sweptvol::model::{Generator, Pose, Trajectory};
+use sweptvol::input::grid::{Accuracy, Overrides};
+use sweptvol::input::model::{Generator, Pose, Trajectory};
+use sweptvol::input::posed::{self, SweepInput};
 use sweptvol::sweep::{cpu, gpu::Gpu, Silent};
 
 /// For every pixel of every image: the computed interval contains the exact interval of the
@@ -164,7 +164,7 @@ fn degenerate_point_triangle_sweeps_a_ball() {
     let p = [0.2f32, -0.1, 0.4];
     let g = generator(vec![p, p, p], vec![[0, 1, 2]]);
     // Zero extent: the tolerance sets the voxel size.
-    let input = job::build(
+    let input = posed::build(
         &g,
         Path::new("t.glb"),
         &Trajectory::whole_scene(&[DMat4::IDENTITY]),
@@ -527,7 +527,7 @@ fn node_rows_move_only_their_own_part_and_static_parts_stay() {
             .collect(),
         has_node_column: true,
     };
-    let input = job::build(
+    let input = posed::build(
         &g,
         Path::new("t.glb"),
         &traj,

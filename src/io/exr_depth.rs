@@ -25,7 +25,7 @@ use exr::prelude::{
 use serde::{Deserialize, Serialize};
 
 use crate::depth::{image_size, DepthImage, DepthImages, AXIS_NAMES, COLUMN_AXIS, ROW_AXIS};
-use crate::grid::{Grid, MAX_RESOLUTION};
+use crate::input::grid::{Grid, MAX_RESOLUTION};
 use crate::io::atomic::Staged;
 
 /// Attribute holding the whole [`DepthMeta`] as JSON text.

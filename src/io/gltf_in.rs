@@ -18,7 +18,7 @@ use gltf::scene::Transform;
 use gltf::{Document, Gltf, Mesh, Node, Semantic};
 
 use crate::error::InputError;
-use crate::model::{Generator, Part};
+use crate::input::model::{Generator, Part};
 
 const REEXPORT: &str = "re-export the file as glTF 2.0";
 const EMBED: &str =

@@ -6,7 +6,7 @@ use std::path::Path;
 use anyhow::{bail, Context};
 use serde_json::json;
 
-use crate::grid::Grid;
+use crate::input::grid::Grid;
 use crate::io::atomic;
 use crate::mesh::Mesh;
 

@@ -5,7 +5,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::grid::Grid;
+use crate::input::grid::Grid;
 use crate::io::gltf_out::world_positions;
 use crate::mesh::Mesh;
 

@@ -13,7 +13,7 @@ use std::path::Path;
 use glam::{DMat3, DMat4, DQuat, DVec3};
 
 use crate::error::InputError;
-use crate::model::{Pose, Trajectory};
+use crate::input::model::{Pose, Trajectory};
 
 /// Matrix-form columns: `m{row}{col}` of M (p' = M·p), row-major.
 const MATRIX: [&str; 16] = [

@@ -239,7 +239,7 @@ impl VoxelSet for DenseSet {
 pub(crate) mod test_support {
     use super::Classifier;
     use crate::depth::{DepthImages, COLUMN_AXIS, ROW_AXIS};
-    use crate::grid::Grid;
+    use crate::input::grid::Grid;
 
     /// A classifier (unit voxels, origin 0) from each pixel's depth range: `range(axis, u, v)`
     /// for the pixel centre at (u, v) along the image's column and row axes.

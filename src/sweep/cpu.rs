@@ -7,10 +7,12 @@ use std::time::Instant;
 use rayon::prelude::*;
 use wide::f32x8;
 
-use super::offset::{encode, PreparedTriangle};
-use super::{empty_encoded, Cancelled, Observer, SLOTS};
+use super::offset::PreparedTriangle;
+use super::{empty_encoded, Cancelled, Observer};
+use crate::depth::encode;
+use crate::depth::SLOTS;
 use crate::depth::{DepthImages, COLUMN_AXIS, ROW_AXIS};
-use crate::job::SweepInput;
+use crate::input::posed::SweepInput;
 
 /// Triangles one rayon task renders under one pose.
 const TRIANGLES_PER_TASK: usize = 512;

@@ -7,9 +7,10 @@ use std::sync::Arc;
 use anyhow::{anyhow, bail, Context};
 use bytemuck::{Pod, Zeroable};
 
-use super::{empty_encoded, Cancelled, Observer, SLOTS};
+use super::{empty_encoded, Cancelled, Observer};
 use crate::depth::DepthImages;
-use crate::job::SweepInput;
+use crate::depth::SLOTS;
+use crate::input::posed::SweepInput;
 
 pub const SHADER_SOURCE: &str = include_str!("../../shaders/sweep.wgsl");
 const WORKGROUP_SIZE: u32 = 64;

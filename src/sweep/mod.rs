@@ -2,17 +2,13 @@
 //! the six depth images, never clearing them. Two backends compute the same definition: the
 //! wgpu compute path (`gpu`) and its CPU twin (`cpu`), which is also the test oracle.
 
+pub mod backend;
 pub mod cpu;
 pub mod gpu;
 pub mod offset;
 
-use crate::job::SweepInput;
-
-/// Pixel slots per pixel in the encoded buffers: enc(D⁻), enc(D⁺).
-pub const SLOTS: usize = 2;
-/// Encoded value an empty D⁻ slot starts at (enc(+inf)); D⁺ starts at enc(-inf).
-pub const EMPTY_MIN: u32 = 0xFF80_0000;
-pub const EMPTY_MAX: u32 = 0x007F_FFFF;
+use crate::depth::{EMPTY_MAX, EMPTY_MIN, SLOTS};
+use crate::input::posed::SweepInput;
 
 /// Watches a long job: progress, and a way to stop early. `pipeline::execute` also reports its
 /// later stages and checks `cancelled` between them.

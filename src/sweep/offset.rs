@@ -294,26 +294,6 @@ impl PreparedTriangle {
     }
 }
 
-/// Order-preserving map from f32 to u32: a < b (as floats, no NaN) iff enc(a) < enc(b) (as u32).
-/// Lets atomic min/max on u32 act as min/max on depths. Same as `encode_depth` in the shader.
-pub fn encode(x: f32) -> u32 {
-    let b = x.to_bits();
-    if b & 0x8000_0000 != 0 {
-        !b
-    } else {
-        b | 0x8000_0000
-    }
-}
-
-/// Inverse of [`encode`].
-pub fn decode(e: u32) -> f32 {
-    if e & 0x8000_0000 != 0 {
-        f32::from_bits(e & 0x7FFF_FFFF)
-    } else {
-        f32::from_bits(!e)
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -354,27 +334,6 @@ mod tests {
             }
         }
         assert!(hits > 10_000, "{hits}");
-    }
-
-    #[test]
-    fn encoding_preserves_order() {
-        let xs = [
-            f32::NEG_INFINITY,
-            -1e30,
-            -2.5,
-            -1e-40,
-            -0.0,
-            0.0,
-            1e-40,
-            0.5,
-            3.0,
-            1e30,
-            f32::INFINITY,
-        ];
-        for w in xs.windows(2) {
-            assert!(encode(w[0]) <= encode(w[1]), "{} vs {}", w[0], w[1]);
-            assert_eq!(decode(encode(w[1])).to_bits(), w[1].to_bits());
-        }
     }
 
     #[test]

@@ -9,7 +9,7 @@ use glam::{DMat4, DVec3};
 use super::bvh::Bvh;
 use super::geom;
 use crate::error::InputError;
-use crate::model::{Generator, Trajectory};
+use crate::input::model::{Generator, Trajectory};
 
 /// One world pose of a part: x_world = matrix · x_local (node transform included).
 #[derive(Clone, Debug)]
@@ -300,7 +300,7 @@ impl PoseTree {
 }
 
 /// Local-frame triangles of a part, f64 (exact from the file's f32).
-pub fn local_triangles(part: &crate::model::Part) -> Vec<[DVec3; 3]> {
+pub fn local_triangles(part: &crate::input::model::Part) -> Vec<[DVec3; 3]> {
     part.triangles
         .iter()
         .map(|t| t.map(|i| part.positions[i as usize].as_dvec3()))

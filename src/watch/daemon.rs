@@ -22,8 +22,8 @@ use super::protocol::JobId;
 use super::runner::{self, Context, QueuedJob};
 use super::scan;
 use super::status::StatusFile;
-use crate::grid::Accuracy;
-use crate::pipeline::{Backend, BackendChoice};
+use crate::input::grid::Accuracy;
+use crate::sweep::backend::{Backend, BackendChoice};
 
 /// Events closer together than this are handled as one.
 const DEBOUNCE: Duration = Duration::from_millis(200);

@@ -6,10 +6,11 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use crate::error::InputError;
-use crate::grid::{Accuracy, Overrides};
+use crate::input::grid::{Accuracy, Overrides};
 use crate::io::exr_depth::{depth_file_name, Side};
 use crate::io::mesh_formats::MeshFormat;
-use crate::pipeline::{self, BackendChoice, RunOptions};
+use crate::pipeline::{self, RunOptions};
+use crate::sweep::backend::BackendChoice;
 
 /// A folder being written by a client: never read. Renaming it without the suffix commits it.
 pub const PARTIAL_SUFFIX: &str = ".partial";

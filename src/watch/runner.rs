@@ -11,8 +11,9 @@ use std::sync::Arc;
 use super::protocol::{self, ErrorInfo, Fingerprint, JobId, JobOptions, State};
 use super::status::StatusFile;
 use crate::error::{InputError, UsageError};
-use crate::grid::Accuracy;
-use crate::pipeline::{self, Backend, BackendChoice, Report};
+use crate::input::grid::Accuracy;
+use crate::pipeline::{self, Report};
+use crate::sweep::backend::{Backend, BackendChoice};
 use crate::sweep::{Cancelled, Observer};
 
 /// job.json larger than this is refused before it is parsed.

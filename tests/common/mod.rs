@@ -5,9 +5,9 @@ use std::path::Path;
 
 use glam::{DMat4, DVec3, Vec3};
 use sweptvol::depth::{DepthImages, COLUMN_AXIS, ROW_AXIS};
-use sweptvol::grid::{Accuracy, Overrides};
-use sweptvol::job::{self, SweepInput};
-use sweptvol::model::{Generator, Part, Trajectory};
+use sweptvol::input::grid::{Accuracy, Overrides};
+use sweptvol::input::model::{Generator, Part, Trajectory};
+use sweptvol::input::posed::{self, SweepInput};
 
 pub type V3 = [f64; 3];
 
@@ -263,7 +263,7 @@ pub fn random_rigid_poses(rng: &mut Rng) -> Vec<DMat4> {
 
 /// The sweep input for `g` moved whole along `poses`, at resolution `n`.
 pub fn build(g: &Generator, poses: &[DMat4], n: u32) -> SweepInput {
-    job::build(
+    posed::build(
         g,
         Path::new("test.glb"),
         &Trajectory::whole_scene(poses),

@@ -8,8 +8,8 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::error::{num, InputError, UsageError};
-use crate::grid::{fit_grid, Accuracy, Grid, Overrides, Params};
-use crate::model::{Generator, Trajectory};
+use crate::input::grid::{fit_grid, Accuracy, Grid, Overrides, Params};
+use crate::input::model::{Generator, Trajectory};
 
 /// Unit roundoff of f32.
 const U32: f64 = f32::EPSILON as f64 / 2.0;

@@ -16,7 +16,7 @@
 //! boundary per pixel can need more, and a run just under the limit may still fail late.
 
 use crate::error::UsageError;
-use crate::grid::{Grid, K_GLOBAL};
+use crate::input::grid::{Grid, K_GLOBAL};
 
 /// Program, thread stacks, inputs and buffers outside the grid-sized structures.
 const BASE_BYTES: f64 = 32.0 * 1048576.0;

@@ -6,23 +6,34 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{bail, Context};
-use serde::Serialize;
 
-use crate::depth::{DepthImages, AXIS_NAMES};
-use crate::grid::{Accuracy, Grid, Overrides};
-use crate::io::exr_depth::{self, ExtraMeta, Side};
+mod outputs;
+mod report;
+
+pub use outputs::{
+    output_paths, output_stem, OutputPaths, MESH_SUFFIX, REPORT_SUFFIX, START_MESH_SUFFIX,
+};
+pub use report::{
+    CountsReport, DepthImagesReport, InputsReport, MeshReport, ParametersReport, Report,
+    TimingsReport,
+};
+
+use outputs::refuse_outputs_on_inputs;
+use report::HAUSDORFF_SCOPE;
+
+use crate::depth::AXIS_NAMES;
+use crate::input::grid::{Accuracy, Overrides};
+use crate::input::posed::{self, SweepInput};
+use crate::io::exr_depth::{self, ExtraMeta};
 use crate::io::mesh_formats::MeshFormat;
 use crate::io::{atomic, gltf_in, gltf_out, trajectory};
-use crate::job::{self, PartRange, SweepInput};
 use crate::mesh::classify::Classifier;
 use crate::mesh::extract;
 use crate::mesh::manifold::Joined;
-use crate::mesh::{ManifoldDefects, Mesh};
-use crate::simplify::{simplify_until, SimplifyOptions, SimplifyStats};
-use crate::sweep::{cpu, gpu::Gpu, Cancelled, Observer};
-
-/// What the report's `hausdorff_bound` covers (paper, section 4).
-const HAUSDORFF_SCOPE: &str = "wherever the swept volume's concavities are visible along some axis; concavities hidden from all six directions are filled and can lie farther: measure with sweptvol verify";
+use crate::mesh::Mesh;
+use crate::simplify::{simplify_until, SimplifyOptions};
+use crate::sweep::backend::Backend;
+use crate::sweep::{Cancelled, Observer};
 
 /// Smallest piece the simplifier's adaptive region tests refine to before rejecting, voxels.
 const MIN_RADIUS_VOXELS: f64 = 0.05;
@@ -30,67 +41,6 @@ const MIN_RADIUS_VOXELS: f64 = 0.05;
 const SWEEP_MARGIN_VOXELS: f64 = 0.05;
 /// Widest band the simplifier decides (exact distances reach 2 voxels), voxels.
 const BAND_CAP_VOXELS: f64 = crate::simplify::band::REACH - 0.05;
-
-/// Which sweep implementation runs.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, Serialize, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum BackendChoice {
-    /// A hardware GPU if there is one, else the CPU twin.
-    Auto,
-    /// wgpu on any adapter, CPU adapters such as lavapipe included.
-    Gpu,
-    /// The CPU twin (rayon).
-    Cpu,
-}
-
-/// A resolved backend: a GPU device (acquired once, reusable) or the CPU twin.
-pub enum Backend {
-    Gpu(Box<Gpu>),
-    Cpu { reason: String },
-}
-
-impl Backend {
-    /// Resolve a choice. `gpu` fails when no adapter exists; `auto` says why it falls back.
-    pub fn acquire(choice: BackendChoice) -> anyhow::Result<Backend> {
-        match choice {
-            BackendChoice::Cpu => Ok(Backend::Cpu {
-                reason: "--backend cpu".into(),
-            }),
-            BackendChoice::Gpu => match Gpu::acquire(true)? {
-                Some(g) => Ok(Backend::Gpu(Box::new(g))),
-                None => bail!(
-                    "--backend gpu: no Vulkan/Metal/DX12 adapter with compute shaders found; install a driver (on Debian, lavapipe: apt-get install mesa-vulkan-drivers libvulkan1) or use --backend cpu"
-                ),
-            },
-            BackendChoice::Auto => match Gpu::acquire(false)? {
-                Some(g) => Ok(Backend::Gpu(Box::new(g))),
-                None => Ok(Backend::Cpu {
-                    reason: "no hardware GPU adapter found: falling back to the CPU twin".into(),
-                }),
-            },
-        }
-    }
-
-    pub fn describe(&self) -> String {
-        match self {
-            Backend::Gpu(g) => format!("gpu: {}", g.describe()),
-            Backend::Cpu { reason } => {
-                format!("cpu: {} threads ({reason})", rayon::current_num_threads())
-            }
-        }
-    }
-
-    pub fn sweep(
-        &self,
-        input: &SweepInput,
-        observer: &dyn Observer,
-    ) -> anyhow::Result<DepthImages> {
-        match self {
-            Backend::Gpu(g) => g.sweep(input, observer),
-            Backend::Cpu { .. } => Ok(cpu::sweep(input, observer)?),
-        }
-    }
-}
 
 /// What `sweptvol run` was asked to do.
 #[derive(Clone, Debug)]
@@ -113,210 +63,6 @@ pub struct RunOptions {
     pub also: Vec<MeshFormat>,
     /// Refuse a run whose estimated memory (`memory::estimate`) exceeds what is available.
     pub check_memory: bool,
-}
-
-/// The report written beside the depth images (`<name>.report.json`).
-#[derive(Clone, Debug, Serialize)]
-pub struct Report {
-    pub sweptvol_version: String,
-    pub inputs: InputsReport,
-    pub grid: Grid,
-    /// Voxels along the longest edge (the paper's n).
-    pub resolution: u32,
-    pub parameters: ParametersReport,
-    pub backend: String,
-    pub counts: CountsReport,
-    /// Seconds per stage.
-    pub timings: TimingsReport,
-    pub outputs: Vec<PathBuf>,
-    pub depth_images: DepthImagesReport,
-    pub mesh: MeshReport,
-    pub warnings: Vec<String>,
-}
-
-/// The output mesh. Distances in world units.
-#[derive(Clone, Debug, Serialize)]
-pub struct MeshReport {
-    pub file: PathBuf,
-    /// Triangles of the voxel boundary (the paper's T_start) and of the output (T_final).
-    pub triangles_start: u64,
-    pub triangles_final: u64,
-    pub vertices: u64,
-    /// Every edge in exactly two triangles, every vertex's triangles one fan, no two vertices
-    /// at one position (checked on the output; `manifold_defects` counts what is not).
-    pub manifold: bool,
-    pub manifold_defects: ManifoldDefects,
-    /// Outside voxels made inside so that voxels touching only along an edge or at a corner
-    /// are joined (the start mesh is then a 2-manifold).
-    pub joined_voxels: u64,
-    /// How far a point of a joined voxel can be from the centre of an original inside voxel,
-    /// world units (0 when none was joined); enters `hausdorff_bound` when it exceeds ε + √3h/2.
-    pub joined_voxel_reach: f64,
-    /// Whether the output was simplified (edge collapses inside the tolerance volume).
-    pub simplified: bool,
-    /// Collapses done and candidates refused, by reason.
-    pub simplification: SimplifyStats,
-    /// Enclosed volume, world units³.
-    pub volume: f64,
-    /// Guaranteed one-sided Hausdorff distance from the mesh to the swept volume wherever its
-    /// concavities are visible along some axis: max(ε + √3h/2, joined voxel reach) + δ + 2ρ +
-    /// output rounding.
-    pub hausdorff_bound: f64,
-    /// Where `hausdorff_bound` holds, in words (it is not a global bound).
-    pub hausdorff_bound_scope: &'static str,
-    /// Every point of the mesh is at least this far outside the swept volume:
-    /// δ - √3h/2 - ε - output rounding.
-    pub clearance: f64,
-    /// Farthest a vertex moves when written as f32 (Euclidean, world units).
-    pub output_rounding: f64,
-}
-
-#[derive(Clone, Debug, Serialize)]
-pub struct InputsReport {
-    pub generator: PathBuf,
-    pub trajectory: PathBuf,
-    pub parts: Vec<PartRange>,
-    /// Parts that no trajectory row names: included once where they stand.
-    pub static_parts: Vec<String>,
-}
-
-/// Distances in world units.
-#[derive(Clone, Debug, Serialize)]
-pub struct ParametersReport {
-    pub voxel_size: f64,
-    pub delta: f64,
-    pub epsilon: f64,
-    pub sigma: f64,
-    /// Added to δ against f32 rounding (derived in `job::rounding_term`).
-    pub rounding: f64,
-    /// The radius rendered: δ + rounding.
-    pub delta_rendered: f64,
-    /// Every depth lies within the offset of radius δ + 2·rounding of the posed triangles.
-    pub delta_upper: f64,
-    /// The paper's ε_global = ε + δ + σ for the mesh stage.
-    pub epsilon_global: f64,
-}
-
-#[derive(Clone, Debug, Serialize)]
-pub struct CountsReport {
-    pub triangles: u64,
-    pub poses: u64,
-    pub posed_triangles: u64,
-    /// Pixels hit per image axis (x, y, z).
-    pub hit_pixels: [u64; 3],
-}
-
-#[derive(Clone, Debug, Default, Serialize)]
-pub struct TimingsReport {
-    pub read_inputs: f64,
-    pub setup: f64,
-    pub sweep: f64,
-    /// Voxel classification and boundary extraction.
-    pub mesh: f64,
-    /// Bounded edge collapses.
-    pub simplify: f64,
-    pub write_outputs: f64,
-    pub total: f64,
-    /// Posed triangles per second in the sweep stage.
-    pub posed_triangles_per_second: f64,
-}
-
-#[derive(Clone, Debug, Serialize)]
-pub struct DepthImagesReport {
-    pub layout: String,
-    pub empty_pixels: String,
-    pub files: Vec<PathBuf>,
-}
-
-/// The stem used for output names.
-pub fn output_stem(opts: &RunOptions) -> anyhow::Result<String> {
-    let stem = match &opts.name {
-        Some(n) => n.clone(),
-        None => opts
-            .trajectory
-            .file_stem()
-            .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_default(),
-    };
-    if stem.contains(['/', '\\']) || stem.starts_with('.') {
-        return Err(crate::error::UsageError::new(format!(
-            "--name {stem:?} must be a plain file name without slashes or a leading dot"
-        ))
-        .into());
-    }
-    if opts.name.is_none() && stem.is_empty() {
-        return Err(crate::error::UsageError::new(format!(
-            "cannot derive an output name from {}; pass --name",
-            opts.trajectory.display()
-        ))
-        .into());
-    }
-    Ok(stem)
-}
-
-fn with_stem(stem: &str, suffix: &str) -> String {
-    if stem.is_empty() {
-        suffix.to_string()
-    } else {
-        format!("{stem}.{suffix}")
-    }
-}
-
-/// Output names after `<stem>.` (bare in a watched job folder): the one place they are spelled
-/// (the watcher's protocol and `sweptvol protocol` take them from here).
-pub const MESH_SUFFIX: &str = "swept.glb";
-pub const START_MESH_SUFFIX: &str = "start.glb";
-pub const REPORT_SUFFIX: &str = "report.json";
-
-/// The extra formats asked for, each once, in `MeshFormat::ALL` order.
-fn also_formats(opts: &RunOptions) -> impl Iterator<Item = MeshFormat> + '_ {
-    MeshFormat::ALL
-        .into_iter()
-        .filter(|f| opts.also.contains(f))
-}
-
-/// Every file a run writes, by role.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub struct OutputPaths {
-    pub mesh: PathBuf,
-    /// Depth images x, y, z; min, max each.
-    pub depth: [PathBuf; 6],
-    pub report: PathBuf,
-    /// With `keep_start_mesh`: the unsimplified voxel boundary.
-    pub start_mesh: Option<PathBuf>,
-    /// The `also` formats, in `MeshFormat::ALL` order.
-    pub also: Vec<(MeshFormat, PathBuf)>,
-}
-
-impl OutputPaths {
-    /// All of them, in the report's order: mesh, depth images, report, start mesh, `also`.
-    pub fn all(&self) -> Vec<PathBuf> {
-        let mut out = vec![self.mesh.clone()];
-        out.extend(self.depth.iter().cloned());
-        out.push(self.report.clone());
-        out.extend(self.start_mesh.iter().cloned());
-        out.extend(self.also.iter().map(|(_, p)| p.clone()));
-        out
-    }
-}
-
-/// Every file `run` writes.
-pub fn output_paths(opts: &RunOptions) -> anyhow::Result<OutputPaths> {
-    let stem = output_stem(opts)?;
-    let at = |suffix: &str| opts.out_dir.join(with_stem(&stem, suffix));
-    // x, y, z; min, max each: the order of `exr_depth::stage_all`.
-    let depth = std::array::from_fn(|i| {
-        let side = [Side::Min, Side::Max][i % 2];
-        opts.out_dir
-            .join(exr_depth::depth_file_name(&stem, i / 2, side))
-    });
-    Ok(OutputPaths {
-        mesh: at(MESH_SUFFIX),
-        depth,
-        report: at(REPORT_SUFFIX),
-        start_mesh: opts.keep_start_mesh.then(|| at(START_MESH_SUFFIX)),
-        also: also_formats(opts).map(|f| (f, at(f.suffix()))).collect(),
-    })
 }
 
 /// A job whose inputs are read and checked and whose sweep input is built: everything that can
@@ -350,7 +96,7 @@ pub fn prepare(opts: &RunOptions) -> anyhow::Result<Prepared> {
         tracing::warn!("{}: {w}", opts.generator.display());
     }
     let t1 = Instant::now();
-    let input = job::build(
+    let input = posed::build(
         &generator,
         &opts.generator,
         &traj,
@@ -359,10 +105,10 @@ pub fn prepare(opts: &RunOptions) -> anyhow::Result<Prepared> {
         opts.overrides,
     )?;
     if opts.check_memory {
-        crate::memory::check(
+        crate::input::memory::check(
             &input.grid,
             opts.keep_start_mesh,
-            crate::memory::available(),
+            crate::input::memory::available(),
         )?;
     }
     Ok(Prepared {
@@ -373,49 +119,6 @@ pub fn prepare(opts: &RunOptions) -> anyhow::Result<Prepared> {
         read_secs: (t1 - t0).as_secs_f64(),
         setup_secs: t1.elapsed().as_secs_f64(),
     })
-}
-
-/// No output may be an input, with or without `--overwrite`: the rename would replace it. Paths
-/// are compared canonicalized (the output's folder resolved, since the output may not exist
-/// yet); an existing output is also compared by device and inode (hard links, symlinks).
-fn refuse_outputs_on_inputs(opts: &RunOptions, outputs: &[PathBuf]) -> anyhow::Result<()> {
-    use std::os::unix::fs::MetadataExt;
-    type Identity = Option<(u64, u64)>; // (device, inode)
-    let inputs: Vec<(&PathBuf, Option<PathBuf>, Identity)> = [&opts.generator, &opts.trajectory]
-        .into_iter()
-        .map(|p| {
-            let id = std::fs::metadata(p).ok().map(|m| (m.dev(), m.ino()));
-            (p, p.canonicalize().ok(), id)
-        })
-        .collect();
-    for out in outputs {
-        let resolved = match (out.parent(), out.file_name()) {
-            (Some(dir), Some(name)) => {
-                let dir = if dir.as_os_str().is_empty() {
-                    std::path::Path::new(".")
-                } else {
-                    dir
-                };
-                dir.canonicalize().ok().map(|d| d.join(name))
-            }
-            _ => None,
-        };
-        let id = std::fs::metadata(out).ok().map(|m| (m.dev(), m.ino()));
-        for (input, real, input_id) in &inputs {
-            let same_path = resolved.is_some() && resolved == *real;
-            let same_file = id.is_some() && id == *input_id;
-            if same_path || same_file {
-                return Err(crate::error::UsageError::new(format!(
-                    "output {} would replace the input {}{}; nothing was written: choose another --out or --name, or rename the input",
-                    out.display(),
-                    input.display(),
-                    if same_path { "" } else { " (the same file by a hard or symbolic link)" }
-                ))
-                .into());
-            }
-        }
-    }
-    Ok(())
 }
 
 /// Sweep a prepared job and write its outputs.

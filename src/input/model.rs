@@ -1,5 +1,5 @@
 //! The inputs after parsing: parts of the generator and the poses that move them.
-//! Plain data, no I/O. Produced by `io::gltf_in` and `io::trajectory`, consumed by `job`.
+//! Plain data, no I/O. Produced by `io::gltf_in` and `io::trajectory`, consumed by `input::posed`.
 
 use glam::{DMat4, Vec3};
 

@@ -1,0 +1,9 @@
+//! The input stage: parts and poses as read ([`model`]) become the sweep's input in grid units
+//! ([`posed`]): which poses move which part, the voxel grid and the method's parameters
+//! ([`grid`]), pose matrices in grid units and the f32 rounding term; [`memory`] estimates what a
+//! run on that grid needs before anything large is allocated.
+
+pub mod grid;
+pub mod memory;
+pub mod model;
+pub mod posed;

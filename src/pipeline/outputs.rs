@@ -1,0 +1,145 @@
+//! The files a run writes, by name: the one place the output names are spelled, and the rule
+//! that no output may be an input.
+
+use std::path::PathBuf;
+
+use super::RunOptions;
+use crate::io::exr_depth::{self, Side};
+use crate::io::mesh_formats::MeshFormat;
+
+/// The stem used for output names.
+pub fn output_stem(opts: &RunOptions) -> anyhow::Result<String> {
+    let stem = match &opts.name {
+        Some(n) => n.clone(),
+        None => opts
+            .trajectory
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default(),
+    };
+    if stem.contains(['/', '\\']) || stem.starts_with('.') {
+        return Err(crate::error::UsageError::new(format!(
+            "--name {stem:?} must be a plain file name without slashes or a leading dot"
+        ))
+        .into());
+    }
+    if opts.name.is_none() && stem.is_empty() {
+        return Err(crate::error::UsageError::new(format!(
+            "cannot derive an output name from {}; pass --name",
+            opts.trajectory.display()
+        ))
+        .into());
+    }
+    Ok(stem)
+}
+
+pub(super) fn with_stem(stem: &str, suffix: &str) -> String {
+    if stem.is_empty() {
+        suffix.to_string()
+    } else {
+        format!("{stem}.{suffix}")
+    }
+}
+
+/// Output names after `<stem>.` (bare in a watched job folder): the one place they are spelled
+/// (the watcher's protocol and `sweptvol protocol` take them from here).
+pub const MESH_SUFFIX: &str = "swept.glb";
+pub const START_MESH_SUFFIX: &str = "start.glb";
+pub const REPORT_SUFFIX: &str = "report.json";
+
+/// The extra formats asked for, each once, in `MeshFormat::ALL` order.
+fn also_formats(opts: &RunOptions) -> impl Iterator<Item = MeshFormat> + '_ {
+    MeshFormat::ALL
+        .into_iter()
+        .filter(|f| opts.also.contains(f))
+}
+
+/// Every file a run writes, by role.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct OutputPaths {
+    pub mesh: PathBuf,
+    /// Depth images x, y, z; min, max each.
+    pub depth: [PathBuf; 6],
+    pub report: PathBuf,
+    /// With `keep_start_mesh`: the unsimplified voxel boundary.
+    pub start_mesh: Option<PathBuf>,
+    /// The `also` formats, in `MeshFormat::ALL` order.
+    pub also: Vec<(MeshFormat, PathBuf)>,
+}
+
+impl OutputPaths {
+    /// All of them, in the report's order: mesh, depth images, report, start mesh, `also`.
+    pub fn all(&self) -> Vec<PathBuf> {
+        let mut out = vec![self.mesh.clone()];
+        out.extend(self.depth.iter().cloned());
+        out.push(self.report.clone());
+        out.extend(self.start_mesh.iter().cloned());
+        out.extend(self.also.iter().map(|(_, p)| p.clone()));
+        out
+    }
+}
+
+/// Every file `run` writes.
+pub fn output_paths(opts: &RunOptions) -> anyhow::Result<OutputPaths> {
+    let stem = output_stem(opts)?;
+    let at = |suffix: &str| opts.out_dir.join(with_stem(&stem, suffix));
+    // x, y, z; min, max each: the order of `exr_depth::stage_all`.
+    let depth = std::array::from_fn(|i| {
+        let side = [Side::Min, Side::Max][i % 2];
+        opts.out_dir
+            .join(exr_depth::depth_file_name(&stem, i / 2, side))
+    });
+    Ok(OutputPaths {
+        mesh: at(MESH_SUFFIX),
+        depth,
+        report: at(REPORT_SUFFIX),
+        start_mesh: opts.keep_start_mesh.then(|| at(START_MESH_SUFFIX)),
+        also: also_formats(opts).map(|f| (f, at(f.suffix()))).collect(),
+    })
+}
+
+/// No output may be an input, with or without `--overwrite`: the rename would replace it. Paths
+/// are compared canonicalized (the output's folder resolved, since the output may not exist
+/// yet); an existing output is also compared by device and inode (hard links, symlinks).
+pub(super) fn refuse_outputs_on_inputs(
+    opts: &RunOptions,
+    outputs: &[PathBuf],
+) -> anyhow::Result<()> {
+    use std::os::unix::fs::MetadataExt;
+    type Identity = Option<(u64, u64)>; // (device, inode)
+    let inputs: Vec<(&PathBuf, Option<PathBuf>, Identity)> = [&opts.generator, &opts.trajectory]
+        .into_iter()
+        .map(|p| {
+            let id = std::fs::metadata(p).ok().map(|m| (m.dev(), m.ino()));
+            (p, p.canonicalize().ok(), id)
+        })
+        .collect();
+    for out in outputs {
+        let resolved = match (out.parent(), out.file_name()) {
+            (Some(dir), Some(name)) => {
+                let dir = if dir.as_os_str().is_empty() {
+                    std::path::Path::new(".")
+                } else {
+                    dir
+                };
+                dir.canonicalize().ok().map(|d| d.join(name))
+            }
+            _ => None,
+        };
+        let id = std::fs::metadata(out).ok().map(|m| (m.dev(), m.ino()));
+        for (input, real, input_id) in &inputs {
+            let same_path = resolved.is_some() && resolved == *real;
+            let same_file = id.is_some() && id == *input_id;
+            if same_path || same_file {
+                return Err(crate::error::UsageError::new(format!(
+                    "output {} would replace the input {}{}; nothing was written: choose another --out or --name, or rename the input",
+                    out.display(),
+                    input.display(),
+                    if same_path { "" } else { " (the same file by a hard or symbolic link)" }
+                ))
+                .into());
+            }
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,70 @@
+//! Which backend sweeps: a GPU device through wgpu (acquired once, reusable) or the CPU twin.
+
+use anyhow::bail;
+use serde::Serialize;
+
+use super::gpu::Gpu;
+use super::{cpu, Observer};
+use crate::depth::DepthImages;
+use crate::input::posed::SweepInput;
+
+/// Which sweep implementation runs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum BackendChoice {
+    /// A hardware GPU if there is one, else the CPU twin.
+    Auto,
+    /// wgpu on any adapter, CPU adapters such as lavapipe included.
+    Gpu,
+    /// The CPU twin (rayon).
+    Cpu,
+}
+
+/// A resolved backend: a GPU device (acquired once, reusable) or the CPU twin.
+pub enum Backend {
+    Gpu(Box<Gpu>),
+    Cpu { reason: String },
+}
+
+impl Backend {
+    /// Resolve a choice. `gpu` fails when no adapter exists; `auto` says why it falls back.
+    pub fn acquire(choice: BackendChoice) -> anyhow::Result<Backend> {
+        match choice {
+            BackendChoice::Cpu => Ok(Backend::Cpu {
+                reason: "--backend cpu".into(),
+            }),
+            BackendChoice::Gpu => match Gpu::acquire(true)? {
+                Some(g) => Ok(Backend::Gpu(Box::new(g))),
+                None => bail!(
+                    "--backend gpu: no Vulkan/Metal/DX12 adapter with compute shaders found; install a driver (on Debian, lavapipe: apt-get install mesa-vulkan-drivers libvulkan1) or use --backend cpu"
+                ),
+            },
+            BackendChoice::Auto => match Gpu::acquire(false)? {
+                Some(g) => Ok(Backend::Gpu(Box::new(g))),
+                None => Ok(Backend::Cpu {
+                    reason: "no hardware GPU adapter found: falling back to the CPU twin".into(),
+                }),
+            },
+        }
+    }
+
+    pub fn describe(&self) -> String {
+        match self {
+            Backend::Gpu(g) => format!("gpu: {}", g.describe()),
+            Backend::Cpu { reason } => {
+                format!("cpu: {} threads ({reason})", rayon::current_num_threads())
+            }
+        }
+    }
+
+    pub fn sweep(
+        &self,
+        input: &SweepInput,
+        observer: &dyn Observer,
+    ) -> anyhow::Result<DepthImages> {
+        match self {
+            Backend::Gpu(g) => g.sweep(input, observer),
+            Backend::Cpu { .. } => Ok(cpu::sweep(input, observer)?),
+        }
+    }
+}
