@@ -194,11 +194,7 @@ impl Observer for Bar {
 }
 
 fn run(args: RunArgs) -> anyhow::Result<()> {
-    let accuracy = match (args.resolution, args.tolerance) {
-        (_, Some(t)) => Accuracy::Tolerance(t),
-        (Some(n), None) => Accuracy::Resolution(n),
-        (None, None) => Accuracy::Resolution(256),
-    };
+    let accuracy = Accuracy::choose(args.resolution, args.tolerance, Accuracy::DEFAULT);
     let opts = RunOptions {
         generator: args.generator,
         trajectory: args.trajectory,
@@ -270,11 +266,7 @@ fn watch(args: WatchArgs) -> anyhow::Result<()> {
         rescan: secs("rescan", args.rescan)?.max(Duration::from_millis(100)),
         jobs: args.jobs,
         backend: args.backend,
-        default_accuracy: match (args.resolution, args.tolerance) {
-            (_, Some(t)) => Accuracy::Tolerance(t),
-            (Some(n), None) => Accuracy::Resolution(n),
-            (None, None) => Accuracy::Resolution(256),
-        },
+        default_accuracy: Accuracy::choose(args.resolution, args.tolerance, Accuracy::DEFAULT),
         max_input_bytes: args.max_input_bytes,
     };
     watch::run(&opts)

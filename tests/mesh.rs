@@ -49,15 +49,9 @@ fn samples(tris: &[[V3; 3]], rng: &mut Rng, per: usize) -> Vec<V3> {
     out
 }
 
-/// The simplifier's defaults (grid units), as the pipeline sets them.
+/// The simplifier's bands for the input's parameters, as the pipeline sets them.
 fn simplify_options(input: &SweepInput) -> SimplifyOptions {
-    let d = input.params.delta / input.grid.h;
-    SimplifyOptions {
-        eps: 3f64.sqrt() / 2.0,
-        eps_sweep: d - 3f64.sqrt() / 2.0 - 0.05,
-        min_radius: 0.05,
-        target_triangles: 0,
-    }
+    SimplifyOptions::for_params(&input.params, input.grid.h, 0).expect("default parameters")
 }
 
 fn check_mesh(input: &SweepInput, mesh: &Mesh, tris: &[[V3; 3]], visible: bool, rng: &mut Rng) {

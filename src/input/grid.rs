@@ -34,6 +34,21 @@ pub enum Accuracy {
     Tolerance(f64),
 }
 
+impl Accuracy {
+    /// When neither a resolution nor a tolerance is given.
+    pub const DEFAULT: Accuracy = Accuracy::Resolution(256);
+
+    /// The accuracy a user's options ask for: a tolerance wins over a resolution, and with
+    /// neither, `default` (the CLI's [`Accuracy::DEFAULT`], or a daemon's own default for its jobs).
+    pub fn choose(resolution: Option<u32>, tolerance: Option<f64>, default: Accuracy) -> Accuracy {
+        match (resolution, tolerance) {
+            (_, Some(t)) => Accuracy::Tolerance(t),
+            (Some(n), None) => Accuracy::Resolution(n),
+            (None, None) => default,
+        }
+    }
+}
+
 /// Optional overrides of δ and ε, world units.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Overrides {

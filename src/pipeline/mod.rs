@@ -35,13 +35,6 @@ use crate::simplify::{simplify_until, SimplifyOptions};
 use crate::sweep::backend::Backend;
 use crate::sweep::{Cancelled, Observer};
 
-/// Smallest piece the simplifier's adaptive region tests refine to before rejecting, voxels.
-const MIN_RADIUS_VOXELS: f64 = 0.05;
-/// Kept between the swept region's band and the limit δ - √3h/2, voxels.
-const SWEEP_MARGIN_VOXELS: f64 = 0.05;
-/// Widest band the simplifier decides (exact distances reach 2 voxels), voxels.
-const BAND_CAP_VOXELS: f64 = crate::simplify::band::REACH - 0.05;
-
 /// What `sweptvol run` was asked to do.
 #[derive(Clone, Debug)]
 pub struct RunOptions {
@@ -162,22 +155,7 @@ pub fn execute(
     );
     let h = input.grid.h;
     let half_diag = 3f64.sqrt() / 2.0; // voxels
-    let band = SimplifyOptions {
-        // Bands past the proximity memo's reach are clamped: narrower bands stay sound.
-        eps: (input.params.epsilon / h).min(BAND_CAP_VOXELS),
-        eps_sweep: (input.params.delta / h - half_diag - SWEEP_MARGIN_VOXELS).min(BAND_CAP_VOXELS),
-        min_radius: MIN_RADIUS_VOXELS,
-        target_triangles: opts.target_triangles,
-    };
-    // Soundness (docs/design.md): a point within eps of the voxel boundary is at least
-    // δ - √3h/2 - eps from the swept volume.
-    if band.eps + half_diag >= input.params.delta / h || band.eps <= band.min_radius {
-        bail!(
-            "ε = {} is too large for δ = {}: the simplifier needs ε + √3h/2 < δ; lower --epsilon or raise --delta",
-            input.params.epsilon,
-            input.params.delta
-        );
-    }
+    let band = SimplifyOptions::for_params(&input.params, h, opts.target_triangles)?;
     // The start mesh's memory goes to the simplifier; what the report and --keep-start-mesh
     // need of it is taken first.
     let triangles_start = start.triangles.len() as u64;

@@ -43,6 +43,12 @@ pub fn dist_to_boundary(cls: &Classifier, p: DVec3, limit: f64) -> Option<f64> {
     (best <= limit).then_some(best)
 }
 
+/// A voxel or hash cell (each index in -2..2^21 - 2: the grid is at most 12288 voxels wide) as one
+/// u64 key: i + 2, j + 2, k + 2 in 21 bits each.
+pub(crate) fn pack_cell(c: [i64; 3]) -> u64 {
+    (c[0] + 2) as u64 | ((c[1] + 2) as u64) << 21 | ((c[2] + 2) as u64) << 42
+}
+
 /// Multiplicative hash for packed voxel keys (the std SipHash dominated the profile).
 #[derive(Default)]
 pub(crate) struct KeyHasher(u64);
@@ -176,8 +182,7 @@ impl<'c> Proximity<'c> {
     /// The memo entry of voxel `v`: bits 0..125 as in [`BLOCK`] for the other-class cubes not
     /// dominated by another ([`DOMINATORS`]), bit [`INSIDE_BIT`] its class.
     fn entry(&mut self, v: [isize; 3]) -> u128 {
-        // Keys pack i+2, j+2, k+2 in 21 bits each (the grid is at most 12288 voxels wide).
-        let key = (v[0] + 2) as u64 | ((v[1] + 2) as u64) << 21 | ((v[2] + 2) as u64) << 42;
+        let key = pack_cell(v.map(|x| x as i64));
         if self.last.0 == key {
             return self.last.1; // refinement queries the same voxel many times in a row
         }

@@ -10,7 +10,8 @@ use std::hash::BuildHasherDefault;
 
 use glam::DVec3;
 
-use crate::simplify::band::KeyHasher;
+use crate::simplify::band::{pack_cell, KeyHasher};
+use crate::simplify::regrow;
 
 /// Distance below which two triangles without a common vertex count as touching, grid units.
 pub const TOUCH: f64 = 1e-6;
@@ -333,8 +334,8 @@ impl TriangleHash {
     }
 
     fn key(c: [i64; 3]) -> u64 {
-        // Cells lie in [-1, 12288/cell + 1]: 21 bits each with an offset of 2.
-        (c[0] + 2) as u64 | ((c[1] + 2) as u64) << 21 | ((c[2] + 2) as u64) << 42
+        // Cells lie in [-1, 12288/cell + 1].
+        pack_cell(c)
     }
 
     /// The cells a triangle at `t` is filed under: those its box meets that its plane comes
@@ -386,9 +387,7 @@ impl TriangleHash {
                         });
                         ids.sort_unstable();
                         ids.dedup();
-                        if ids.len() * 4 > ids.capacity() * 3 {
-                            ids.reserve(ids.capacity());
-                        }
+                        ids.reserve(regrow(ids.len(), ids.capacity()));
                     }
                     if ids.last() != Some(&id) {
                         ids.push(id);

@@ -40,6 +40,17 @@ const BATCH: usize = 64;
 /// Edge of the triangle hash's cells, grid units (triangles span a few voxels).
 const HASH_CELL: f64 = 2.0;
 
+/// The rule for lists pruned when full (the queue's FIFO and buckets, the triangle hash's
+/// cells): after pruning, grow by the whole capacity when less than a quarter was freed, so
+/// pushes stay amortized O(1) even where most entries are live. The room to reserve.
+pub(crate) fn regrow(len: usize, capacity: usize) -> usize {
+    if len * 4 > capacity * 3 {
+        capacity
+    } else {
+        0
+    }
+}
+
 /// What the simplifier may do, grid units.
 #[derive(Clone, Copy, Debug)]
 pub struct SimplifyOptions {
@@ -51,6 +62,41 @@ pub struct SimplifyOptions {
     pub min_radius: f64,
     /// Stop once the mesh has at most this many triangles (the checks always win).
     pub target_triangles: usize,
+}
+
+/// Smallest piece the adaptive region tests refine to before rejecting, voxels.
+const MIN_RADIUS_VOXELS: f64 = 0.05;
+/// Kept between the swept region's band and the limit δ - √3h/2, voxels.
+const SWEEP_MARGIN_VOXELS: f64 = 0.05;
+/// Widest band the simplifier decides (exact distances reach 2 voxels), voxels.
+const BAND_CAP_VOXELS: f64 = band::REACH - 0.05;
+
+impl SimplifyOptions {
+    /// The bands for a run's parameters (world units, voxel edge `h`): eps = ε and
+    /// eps_sweep = δ - √3h/2 - 0.05h, in voxels, both clamped to what the proximity memo decides
+    /// (narrower bands stay sound). Refused unless ε + √3h/2 < δ (docs/design.md: a point within
+    /// eps of the voxel boundary is then at least δ - √3h/2 - eps from the swept volume).
+    pub fn for_params(
+        params: &crate::input::grid::Params,
+        h: f64,
+        target_triangles: usize,
+    ) -> anyhow::Result<SimplifyOptions> {
+        let half_diag = 3f64.sqrt() / 2.0; // voxels
+        let band = SimplifyOptions {
+            eps: (params.epsilon / h).min(BAND_CAP_VOXELS),
+            eps_sweep: (params.delta / h - half_diag - SWEEP_MARGIN_VOXELS).min(BAND_CAP_VOXELS),
+            min_radius: MIN_RADIUS_VOXELS,
+            target_triangles,
+        };
+        if band.eps + half_diag >= params.delta / h || band.eps <= band.min_radius {
+            anyhow::bail!(
+                "ε = {} is too large for δ = {}: the simplifier needs ε + √3h/2 < δ; lower --epsilon or raise --delta",
+                params.epsilon,
+                params.delta
+            );
+        }
+        Ok(band)
+    }
 }
 
 /// Counts of what happened, for the report and the tests.
@@ -618,9 +664,7 @@ impl State {
             let zero = &mut queue.zero;
             if zero.len() == zero.capacity() {
                 zero.retain(|c| self.is_current(c));
-                if zero.len() * 4 > zero.capacity() * 3 {
-                    zero.reserve(zero.capacity());
-                }
+                zero.reserve(regrow(zero.len(), zero.capacity()));
             }
             zero.push_back(c);
             return;
@@ -630,9 +674,7 @@ impl State {
         let heap = &mut queue.buckets[k];
         if heap.len() == heap.capacity() && heap.len() >= 64 {
             heap.retain(|c| self.is_current(c));
-            if heap.len() * 4 > heap.capacity() * 3 {
-                heap.reserve(heap.capacity());
-            }
+            heap.reserve(regrow(heap.len(), heap.capacity()));
         }
         heap.push(c);
     }

@@ -371,11 +371,7 @@ impl JobOptions {
         root: &Path,
         default_accuracy: Accuracy,
     ) -> RunOptions {
-        let accuracy = match (self.resolution, self.tolerance) {
-            (_, Some(t)) => Accuracy::Tolerance(t),
-            (Some(n), None) => Accuracy::Resolution(n),
-            (None, None) => default_accuracy,
-        };
+        let accuracy = Accuracy::choose(self.resolution, self.tolerance, default_accuracy);
         RunOptions {
             generator,
             trajectory,
