@@ -3,7 +3,7 @@
 //!     cargo run --release --example bench_sweep -- vibrating --backend cpu --poses 200
 //!     cargo run --release --example bench_sweep -- assembly --backend gpu
 //!
-//! Workloads (the generator is `../shared/data/dragon-11k.glb`, subdivided):
+//! Workloads (the generator is `examples/dragon-11k.glb`, a copy of `../shared/data`'s, subdivided):
 //! - `vibrating`: each edge split in 3 (99,918 triangles), 10,000 poses of small jitter
 //!   (rotations up to 0.5°, translations up to 0.2% of the part), like a measured vibration.
 //! - `assembly`: each edge split in 5 (277,550 triangles), 200 poses along a long path with
@@ -109,7 +109,8 @@ fn main() -> anyhow::Result<()> {
     };
     let count: usize = flag("--poses").map_or(Ok(full_poses), |s| s.parse())?;
 
-    let mut g = gltf_in::read_generator(Path::new("../shared/data/dragon-11k.glb"))?;
+    let dragon = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/dragon-11k.glb");
+    let mut g = gltf_in::read_generator(&dragon)?;
     subdivide(&mut g, split);
     let lo = g.parts[0]
         .positions
