@@ -11,6 +11,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use sweptvol::error::{self, UsageError};
 use sweptvol::input::grid::{Accuracy, Overrides};
+use sweptvol::io::mesh_formats::MeshFormat;
 use sweptvol::pipeline::{self, RunOptions};
 use sweptvol::sweep::backend::{Backend, BackendChoice};
 use sweptvol::sweep::Observer;
@@ -43,6 +44,65 @@ enum Command {
     Protocol,
 }
 
+/// The command line's spelling of the library's choices (the library knows no clap).
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+enum BackendArg {
+    /// A hardware GPU if there is one, else the CPU twin.
+    Auto,
+    /// wgpu on any adapter, CPU adapters such as lavapipe included.
+    Gpu,
+    /// The CPU twin (rayon).
+    Cpu,
+}
+
+impl From<BackendArg> for BackendChoice {
+    fn from(b: BackendArg) -> Self {
+        match b {
+            BackendArg::Auto => BackendChoice::Auto,
+            BackendArg::Gpu => BackendChoice::Gpu,
+            BackendArg::Cpu => BackendChoice::Cpu,
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+enum BoundScopeArg {
+    /// At every mesh point.
+    Everywhere,
+    /// At every mesh point that sees out of the swept volume along some axis (the scope of
+    /// `run`'s hausdorff_bound: points in pockets hidden from all six axes are accepted).
+    AxisVisible,
+}
+
+impl From<BoundScopeArg> for BoundScope {
+    fn from(b: BoundScopeArg) -> Self {
+        match b {
+            BoundScopeArg::Everywhere => BoundScope::Everywhere,
+            BoundScopeArg::AxisVisible => BoundScope::AxisVisible,
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+enum FormatArg {
+    /// Binary STL with outward facet normals.
+    Stl,
+    /// Binary little-endian PLY.
+    Ply,
+    /// Wavefront OBJ.
+    Obj,
+}
+
+impl From<FormatArg> for MeshFormat {
+    fn from(f: FormatArg) -> Self {
+        match f {
+            FormatArg::Stl => MeshFormat::Stl,
+            FormatArg::Ply => MeshFormat::Ply,
+            FormatArg::Obj => MeshFormat::Obj,
+        }
+    }
+}
+
 #[derive(Args)]
 struct WatchArgs {
     /// The watched folder (must exist). Nothing outside it is read or written.
@@ -71,8 +131,8 @@ struct WatchArgs {
     #[arg(long, value_name = "N", default_value_t = 1)]
     jobs: usize,
     /// Where sweeps run; the GPU device is acquired once and reused by every job.
-    #[arg(long, value_enum, default_value_t = BackendChoice::Auto)]
-    backend: BackendChoice,
+    #[arg(long, value_enum, default_value_t = BackendArg::Auto)]
+    backend: BackendArg,
     /// Voxels along the longest edge, for jobs whose job.json names neither resolution nor
     /// tolerance, and for drops [default: 256].
     #[arg(long, value_name = "N", conflicts_with = "tolerance")]
@@ -106,8 +166,8 @@ struct VerifyArgs {
     /// Where --bound must hold: everywhere, or axis-visible (mesh points whose six axis rays
     /// all come within B of the swept volume lie in filled pockets and are accepted: the scope
     /// of `run`'s hausdorff_bound).
-    #[arg(long, value_enum, default_value_t = BoundScope::Everywhere)]
-    bound_scope: BoundScope,
+    #[arg(long, value_enum, default_value_t = BoundScopeArg::Everywhere)]
+    bound_scope: BoundScopeArg,
     /// Finest covering radius of the samples, world units [default: mesh diagonal / 2000].
     #[arg(long, value_name = "S", allow_negative_numbers = true)]
     spacing: Option<f64>,
@@ -147,8 +207,8 @@ struct RunArgs {
     #[arg(long, value_name = "E", allow_negative_numbers = true)]
     epsilon: Option<f64>,
     /// Where the sweep runs: auto takes a hardware GPU if present, else the CPU.
-    #[arg(long, value_enum, default_value_t = BackendChoice::Auto)]
-    backend: BackendChoice,
+    #[arg(long, value_enum, default_value_t = BackendArg::Auto)]
+    backend: BackendArg,
     /// Output file stem [default: the trajectory's file stem].
     #[arg(long)]
     name: Option<String>,
@@ -162,7 +222,7 @@ struct RunArgs {
     /// Also write the swept mesh as NAME.swept.stl (binary, outward normals), .ply (binary) or
     /// .obj: a comma-separated list.
     #[arg(long, value_enum, value_delimiter = ',', value_name = "FORMATS")]
-    also: Vec<sweptvol::io::mesh_formats::MeshFormat>,
+    also: Vec<FormatArg>,
     /// Run even when the memory estimate (from the grid size, made for parts that fill their
     /// box) exceeds what is available; for thin or sparse parts it can be far too high.
     #[arg(long)]
@@ -208,15 +268,15 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
         overwrite: args.overwrite,
         target_triangles: args.target_triangles.unwrap_or(0),
         keep_start_mesh: args.keep_start_mesh,
-        also: args.also.clone(),
+        also: args.also.iter().map(|&f| f.into()).collect(),
         check_memory: !args.no_memory_check,
     };
     // Inputs first: a bad file is reported before any GPU start-up.
     let job = pipeline::prepare(&opts)?;
-    let backend = Backend::acquire(args.backend)?;
+    let backend = Backend::acquire(args.backend.into())?;
     if let Backend::Cpu { reason } = &backend {
         // Under --quiet a successful run prints nothing, so the fallback is only logged.
-        if args.backend == BackendChoice::Auto && !args.quiet {
+        if matches!(args.backend, BackendArg::Auto) && !args.quiet {
             tracing::warn!("{reason}");
         }
     }
@@ -265,7 +325,7 @@ fn watch(args: WatchArgs) -> anyhow::Result<()> {
         settle: secs("settle", args.settle)?,
         rescan: secs("rescan", args.rescan)?.max(Duration::from_millis(100)),
         jobs: args.jobs,
-        backend: args.backend,
+        backend: args.backend.into(),
         default_accuracy: Accuracy::choose(args.resolution, args.tolerance, Accuracy::DEFAULT),
         max_input_bytes: args.max_input_bytes,
     };
@@ -296,7 +356,7 @@ fn verify(args: VerifyArgs) -> anyhow::Result<ExitCode> {
         trajectory: args.trajectory,
         mesh: args.mesh,
         bound: args.bound,
-        bound_scope: args.bound_scope,
+        bound_scope: args.bound_scope.into(),
         spacing: args.spacing,
         all_failures: args.all_failures,
     };

@@ -9,7 +9,7 @@ use crate::depth::DepthImages;
 use crate::input::posed::SweepInput;
 
 /// Which sweep implementation runs.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, Serialize, serde::Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum BackendChoice {
     /// A hardware GPU if there is one, else the CPU twin.

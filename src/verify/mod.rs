@@ -43,7 +43,7 @@ pub const DEFAULT_SPACING_FRACTION: f64 = 1.0 / 2000.0;
 pub const MAX_SAMPLES: f64 = 1e10;
 
 /// Where `--bound` must hold.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum BoundScope {
     /// At every mesh point.
