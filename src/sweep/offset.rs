@@ -12,7 +12,7 @@
 //! without guarding it, and every candidate depth is evaluated at an explicit point of the
 //! offset (a ball centre, a point of an edge, a point of the triangle at distance `d`), so
 //! rounding moves a candidate by a few ulps of the coordinates, never by a conditioning factor.
-//! The caller inflates the radius by the rounding term of `bounds::RoundingBound` to absorb that.
+//! The caller inflates the radius by the rounding term ρ (`input::posed::rounding_term`) to absorb that.
 
 /// Interval [t0, t1] along the ray; empty when t0 > t1 (initially +inf, -inf).
 use wide::{f32x8, CmpGe, CmpLe, CmpLt};
