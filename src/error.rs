@@ -55,33 +55,117 @@ impl fmt::Display for InputError {
 
 impl std::error::Error for InputError {}
 
-/// A bad option value or combination (`--resolution 4`, `--tolerance -1`, an output name equal
-/// to an input): exit code 2 like an [`InputError`], with what is wrong and what to do.
-#[derive(Debug, Clone, PartialEq)]
-pub struct UsageError {
-    pub message: String,
+/// An option of a run, a watch or a verification, by the library's own name. Each shell words
+/// it in its own terms: `--delta` on the command line, `"delta"` in job.json, a panel field in
+/// the add-on. [`OptionKey::name`] is the job.json key where the option has one.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum OptionKey {
+    Resolution,
+    Tolerance,
+    Delta,
+    Epsilon,
+    Name,
+    Out,
+    Overwrite,
+    NoMemoryCheck,
+    Spacing,
+    Bound,
+    Settle,
+    Rescan,
 }
 
-impl UsageError {
-    pub fn new(message: impl Into<String>) -> Self {
-        UsageError {
-            message: message.into(),
+impl OptionKey {
+    pub const ALL: [OptionKey; 12] = [
+        OptionKey::Resolution,
+        OptionKey::Tolerance,
+        OptionKey::Delta,
+        OptionKey::Epsilon,
+        OptionKey::Name,
+        OptionKey::Out,
+        OptionKey::Overwrite,
+        OptionKey::NoMemoryCheck,
+        OptionKey::Spacing,
+        OptionKey::Bound,
+        OptionKey::Settle,
+        OptionKey::Rescan,
+    ];
+
+    /// The library's name: snake_case, the same as the job.json key where there is one.
+    pub fn name(self) -> &'static str {
+        match self {
+            OptionKey::Resolution => "resolution",
+            OptionKey::Tolerance => "tolerance",
+            OptionKey::Delta => "delta",
+            OptionKey::Epsilon => "epsilon",
+            OptionKey::Name => "name",
+            OptionKey::Out => "out",
+            OptionKey::Overwrite => "overwrite",
+            OptionKey::NoMemoryCheck => "no_memory_check",
+            OptionKey::Spacing => "spacing",
+            OptionKey::Bound => "bound",
+            OptionKey::Settle => "settle",
+            OptionKey::Rescan => "rescan",
         }
     }
-}
 
-impl fmt::Display for UsageError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(&self.message)
+    /// The command line's spelling: `--no-memory-check`.
+    pub fn flag(self) -> String {
+        format!("--{}", self.name().replace('_', "-"))
     }
 }
 
-impl std::error::Error for UsageError {}
+/// A bad option value or combination (`--resolution 4`, `--tolerance -1`, an output name equal
+/// to an input): exit code 2 like an [`InputError`], with what is wrong and what to do.
+///
+/// `key` is the option at fault. The text names options as `$key` placeholders (`$delta`,
+/// `$no_memory_check`), so that [`OptionError::worded`] can spell them as the shell the user
+/// typed them in does; `Display` uses the library's plain names ("delta must exceed ε + σ").
+#[derive(Debug, Clone, PartialEq)]
+pub struct OptionError {
+    pub key: OptionKey,
+    template: String,
+}
+
+impl OptionError {
+    /// `template` names options as `$key` (see the type's comment).
+    pub fn new(key: OptionKey, template: impl Into<String>) -> Self {
+        let template = template.into();
+        OptionError { key, template }
+    }
+
+    /// The text with each `$key` spelled by `spell` (`OptionKey::flag` for the CLI).
+    pub fn worded(&self, spell: impl Fn(OptionKey) -> String) -> String {
+        let mut out = String::with_capacity(self.template.len());
+        let mut rest = self.template.as_str();
+        while let Some(i) = rest.find('$') {
+            out.push_str(&rest[..i]);
+            let after = &rest[i + 1..];
+            let len = after
+                .find(|c: char| !(c.is_ascii_lowercase() || c == '_'))
+                .unwrap_or(after.len());
+            match OptionKey::ALL.iter().find(|k| k.name() == &after[..len]) {
+                Some(&k) => out.push_str(&spell(k)),
+                None => out.push_str(&rest[i..i + 1 + len]),
+            }
+            rest = &after[len..];
+        }
+        out.push_str(rest);
+        out
+    }
+}
+
+impl fmt::Display for OptionError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(&self.worded(|k| k.name().to_string()))
+    }
+}
+
+impl std::error::Error for OptionError {}
 
 /// Exit code 2 errors: a problem with an input file or an option value.
 pub fn is_user_error(e: &anyhow::Error) -> bool {
     e.chain()
-        .any(|c| c.is::<InputError>() || c.is::<UsageError>())
+        .any(|c| c.is::<InputError>() || c.is::<OptionError>())
 }
 
 /// A number for a message: plain notation in a sane range, else scientific (never 300 digits).
@@ -90,5 +174,36 @@ pub fn num(x: f64) -> String {
         format!("{x}")
     } else {
         format!("{x:e}")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn option_errors_are_worded_by_each_shell() {
+        let e = OptionError::new(
+            OptionKey::Delta,
+            "δ = 0.1 must exceed ε + σ; raise $delta or lower $epsilon, or pass $no_memory_check",
+        );
+        assert_eq!(
+            e.to_string(),
+            "δ = 0.1 must exceed ε + σ; raise delta or lower epsilon, or pass no_memory_check"
+        );
+        assert_eq!(
+            e.worded(OptionKey::flag),
+            "δ = 0.1 must exceed ε + σ; raise --delta or lower --epsilon, or pass --no-memory-check"
+        );
+        assert_eq!(e.key, OptionKey::Delta);
+        // A `$` that names no option stays as written.
+        let plain = OptionError::new(OptionKey::Name, "costs $5 or $x_unknown");
+        assert_eq!(plain.worded(OptionKey::flag), "costs $5 or $x_unknown");
+    }
+
+    #[test]
+    fn option_names_are_distinct() {
+        let names: std::collections::HashSet<_> = OptionKey::ALL.iter().map(|k| k.name()).collect();
+        assert_eq!(names.len(), OptionKey::ALL.len());
     }
 }

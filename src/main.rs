@@ -9,7 +9,7 @@ use std::time::Duration;
 use clap::{Args, Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 
-use sweptvol::error::{self, UsageError};
+use sweptvol::error::{self, OptionError, OptionKey};
 use sweptvol::input::grid::{Accuracy, Overrides};
 use sweptvol::io::mesh_formats::MeshFormat;
 use sweptvol::pipeline::{self, RunOptions};
@@ -310,20 +310,21 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
 }
 
 fn watch(args: WatchArgs) -> anyhow::Result<()> {
-    let secs = |flag: &str, v: f64| {
+    let secs = |key: OptionKey, v: f64| {
         if v.is_finite() && v >= 0.0 {
             Ok(Duration::from_secs_f64(v))
         } else {
-            Err(UsageError::new(format!(
-                "--{flag} {v}: give a number of seconds >= 0"
-            )))
+            Err(OptionError::new(
+                key,
+                format!("${} {v}: give a number of seconds >= 0", key.name()),
+            ))
         }
     };
     let opts = WatchOptions {
         dir: args.dir,
         once: args.once,
-        settle: secs("settle", args.settle)?,
-        rescan: secs("rescan", args.rescan)?.max(Duration::from_millis(100)),
+        settle: secs(OptionKey::Settle, args.settle)?,
+        rescan: secs(OptionKey::Rescan, args.rescan)?.max(Duration::from_millis(100)),
         jobs: args.jobs,
         backend: args.backend.into(),
         default_accuracy: Accuracy::choose(args.resolution, args.tolerance, Accuracy::DEFAULT),
@@ -421,7 +422,7 @@ fn main() -> ExitCode {
     match result {
         Ok(code) => code,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", in_cli_terms(&e));
             // 2: the input or the options are wrong; 1: anything else.
             if error::is_user_error(&e) {
                 ExitCode::from(2)
@@ -430,4 +431,16 @@ fn main() -> ExitCode {
             }
         }
     }
+}
+
+/// The error chain as `{:#}` prints it, with option errors spelled as this command line's flags.
+fn in_cli_terms(e: &anyhow::Error) -> String {
+    let parts: Vec<String> = e
+        .chain()
+        .map(|c| match c.downcast_ref::<OptionError>() {
+            Some(o) => o.worded(OptionKey::flag),
+            None => c.to_string(),
+        })
+        .collect();
+    parts.join(": ")
 }

@@ -349,13 +349,18 @@ fn bad_option_values_exit_2_and_bad_files_say_what_they_are() {
     let t = write(d, "part.csv", CSV);
     let out = d.join("results");
     for (extra, needle) in [
-        (&["--tolerance", "-1"][..], "tolerance -1"),
-        (&["--resolution", "4"], "resolution 4"),
-        (&["--delta", "-0.5"], "δ"),
+        (&["--tolerance", "-1"][..], "--tolerance -1 must be a positive"),
+        (&["--resolution", "4"], "--resolution 4 is outside"),
+        (&["--delta", "-0.5"], "--delta -0.5 must be a positive"),
+        (
+            &["--resolution", "64", "--delta", "1e-9"],
+            "raise --delta or lower --epsilon",
+        ),
     ] {
+        // Each option is named as the command line spells it.
         let args = run_args(&g, &t, &out, extra);
         let err = expect_refused(d, &args, &[]);
-        assert!(err.contains(needle) || extra[0] == "--delta", "{err}");
+        assert!(err.contains(needle), "{needle:?} not in {err}");
     }
     // A file that is no glTF at all: named as such, with its first bytes.
     let zip = write(d, "part.glb", b"PK\x03\x04zipped");

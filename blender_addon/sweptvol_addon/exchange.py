@@ -371,6 +371,24 @@ def read_report(job_dir):
     return read_json(os.path.join(job_dir, REPORT))
 
 
+# The panel fields that set job.json keys. The daemon names a bad option value by its key
+# (status.json `error.column`, and `"key"` in `error.message`); the panel words it by the field.
+PANEL_FIELDS = {"resolution": "Resolution", "tolerance": "Tolerance"}
+
+
+def failure_text(status):
+    """Why a job failed, in the panel's terms: a bad value of a panel field is named by the
+    field (the daemon's `"tolerance"` becomes Tolerance), with the fix in the panel."""
+    error = (status or {}).get("error") or {}
+    key = error.get("column")
+    if os.path.basename(str(error.get("file") or "")) == JOB_JSON and key in PANEL_FIELDS:
+        text = str(error.get("message") or "")
+        for k, label in PANEL_FIELDS.items():
+            text = text.replace(f'"{k}"', label)
+        return f"{text} (fix: change {PANEL_FIELDS[key]} in the Swept Volume panel)"
+    return (status or {}).get("message", "")
+
+
 def describe_status(status):
     """One line for the panel and the status bar."""
     if status is None:
@@ -379,8 +397,10 @@ def describe_status(status):
     if state == "running":
         pct = 100.0 * float(status.get("progress") or 0.0)
         return f"running: {status.get('stage') or ''} {pct:.0f}%"
-    if state in ("failed", "cancelled") and status.get("message"):
-        return f"{state}: {status['message']}"
+    if state == "failed" and status.get("message"):
+        return f"failed: {failure_text(status)}"
+    if state == "cancelled" and status.get("message"):
+        return f"cancelled: {status['message']}"
     return state
 
 

@@ -343,7 +343,7 @@ def update_job(job):
             job["line"] = job["error"]
             _report("ERROR", job["error"])
     elif state == "failed":
-        job["error"] = f"sweptvol failed for {job['label']}: {status.get('message', '')}"
+        job["error"] = f"sweptvol failed for {job['label']}: {exchange.failure_text(status)}"
         _report("ERROR", job["error"])
     else:
         _report("WARNING", f"sweptvol job for {job['label']} cancelled")

@@ -7,6 +7,8 @@
 use glam::DVec3;
 use serde::Serialize;
 
+use crate::error::{num, OptionError, OptionKey};
+
 /// δ = K_DELTA·h: the paper's tight offset radius (2√3+√2)/2n.
 pub const K_DELTA: f64 = (2.0 * SQRT_3 + std::f64::consts::SQRT_2) / 2.0;
 /// ε = K_EPSILON·h: half a voxel diagonal, √3/2n.
@@ -101,29 +103,38 @@ pub struct Params {
 }
 
 /// Fit a grid around the axis-aligned box [lo, hi] of all posed geometry.
-/// Errors are messages for the user (what is wrong and what to do).
+/// Errors name the option at fault and what to do about it.
 pub fn fit_grid(
     lo: DVec3,
     hi: DVec3,
     accuracy: Accuracy,
     overrides: Overrides,
-) -> Result<(Grid, Params), String> {
+) -> Result<(Grid, Params), OptionError> {
     let extent = hi - lo;
     let longest = extent.max_element();
+    let accuracy_key = match accuracy {
+        Accuracy::Resolution(_) => OptionKey::Resolution,
+        Accuracy::Tolerance(_) => OptionKey::Tolerance,
+    };
     if !(longest.is_finite() && lo.is_finite()) {
-        return Err("the posed geometry has a non-finite bounding box".into());
+        return Err(OptionError::new(
+            accuracy_key,
+            "the posed geometry has a non-finite bounding box",
+        ));
     }
     let h = match accuracy {
         Accuracy::Resolution(n) => {
             if !(MIN_RESOLUTION..=MAX_RESOLUTION).contains(&n) {
-                return Err(format!(
-                    "resolution {n} is outside {MIN_RESOLUTION}..={MAX_RESOLUTION}; pick a resolution in that range"
+                return Err(OptionError::new(
+                    OptionKey::Resolution,
+                    format!("$resolution {n} is outside {MIN_RESOLUTION}..={MAX_RESOLUTION}; pick a resolution in that range"),
                 ));
             }
             if longest <= 0.0 {
-                return Err(
-                    "the posed geometry has zero extent, so a resolution cannot set the voxel size; give --tolerance instead".into(),
-                );
+                return Err(OptionError::new(
+                    OptionKey::Resolution,
+                    "the posed geometry has zero extent, so $resolution cannot set the voxel size; give $tolerance instead",
+                ));
             }
             // n·h = longest + 2δ + 2·margin·h, with δ either fixed or K_DELTA·h.
             let free = n as f64 - 2.0 * MARGIN_VOXELS;
@@ -134,8 +145,9 @@ pub fn fit_grid(
         }
         Accuracy::Tolerance(t) => {
             if !(t.is_finite() && t > 0.0) {
-                return Err(format!(
-                    "tolerance {t} must be a positive number of world units"
+                return Err(OptionError::new(
+                    OptionKey::Tolerance,
+                    format!("$tolerance {t} must be a positive number of world units"),
                 ));
             }
             t / K_GLOBAL
@@ -152,9 +164,12 @@ pub fn fit_grid(
     for a in 0..3 {
         let voxels = ((extent[a] + 2.0 * pad) / h * (1.0 - 1e-12)).ceil();
         if voxels > MAX_RESOLUTION as f64 {
-            return Err(format!(
-                "the grid would need {voxels} voxels along {}, more than {MAX_RESOLUTION}; give a larger tolerance",
-                ["x", "y", "z"][a]
+            return Err(OptionError::new(
+                accuracy_key,
+                format!(
+                    "the grid would need {voxels} voxels along {}, more than {MAX_RESOLUTION}; give a larger $tolerance",
+                    ["x", "y", "z"][a]
+                ),
             ));
         }
         dims[a] = (voxels as u32).max(1);
@@ -171,28 +186,51 @@ pub fn fit_grid(
     ))
 }
 
-fn check_params(p: &Params, h: f64, overrides: Overrides) -> Result<(), String> {
-    for (name, v) in [("delta", overrides.delta), ("epsilon", overrides.epsilon)] {
+fn check_params(p: &Params, h: f64, overrides: Overrides) -> Result<(), OptionError> {
+    for (key, v) in [
+        (OptionKey::Delta, overrides.delta),
+        (OptionKey::Epsilon, overrides.epsilon),
+    ] {
         if let Some(v) = v {
             if !(v.is_finite() && v > 0.0) {
-                return Err(format!(
-                    "--{name} {v} must be a positive number of world units"
+                return Err(OptionError::new(
+                    key,
+                    format!(
+                        "${} {v} must be a positive number of world units",
+                        key.name()
+                    ),
                 ));
             }
         }
     }
     if overrides.epsilon.is_some() && p.epsilon <= K_EPSILON * h {
-        return Err(format!(
-            "--epsilon {} must exceed half a voxel diagonal √3h/2 = {} (h = {h}); raise it or refine the grid",
-            p.epsilon,
-            K_EPSILON * h
+        return Err(OptionError::new(
+            OptionKey::Epsilon,
+            format!(
+                "$epsilon {} must exceed half a voxel diagonal √3h/2 = {} (h = {}); raise it or refine the grid",
+                num(p.epsilon),
+                num(K_EPSILON * h),
+                num(h)
+            ),
         ));
     }
     if (overrides.delta.is_some() || overrides.epsilon.is_some()) && p.delta <= p.epsilon + p.sigma
     {
-        return Err(format!(
-            "δ = {} must exceed ε + σ = {} + {} (h = {h}); raise --delta or lower --epsilon",
-            p.delta, p.epsilon, p.sigma
+        // The key is the one the user gave; with both, δ is the one the message says to raise.
+        let key = if overrides.delta.is_some() {
+            OptionKey::Delta
+        } else {
+            OptionKey::Epsilon
+        };
+        return Err(OptionError::new(
+            key,
+            format!(
+                "δ = {} must exceed ε + σ = {} + {} (h = {}); raise $delta or lower $epsilon",
+                num(p.delta),
+                num(p.epsilon),
+                num(p.sigma),
+                num(h)
+            ),
         ));
     }
     Ok(())
@@ -248,14 +286,27 @@ mod tests {
                 },
             )
         };
-        assert!(fit(Some(0.001), None)
-            .unwrap_err()
-            .contains("must exceed ε + σ"));
-        assert!(fit(None, Some(0.0001))
-            .unwrap_err()
-            .contains("half a voxel diagonal"));
+        let e = fit(Some(0.001), None).unwrap_err();
+        assert_eq!(e.key, OptionKey::Delta);
+        assert!(
+            e.to_string()
+                .starts_with("δ = 0.001 must exceed ε + σ"),
+            "{e}"
+        );
+        assert!(
+            e.worded(OptionKey::flag)
+                .contains("raise --delta or lower --epsilon"),
+            "{e}"
+        );
+        let e = fit(None, Some(0.0001)).unwrap_err();
+        assert_eq!(e.key, OptionKey::Epsilon);
+        assert!(e.to_string().contains("half a voxel diagonal"), "{e}");
         assert!(fit(Some(0.1), Some(0.02)).is_ok());
-        assert!(fit(Some(-1.0), None).unwrap_err().contains("positive"));
+        let e = fit(Some(-1.0), None).unwrap_err();
+        assert_eq!(
+            (e.key, e.to_string().contains("positive")),
+            (OptionKey::Delta, true)
+        );
     }
 
     #[test]

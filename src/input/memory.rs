@@ -15,7 +15,7 @@
 //! 4.04 GB was measured (docs/benchmarks.md). An estimate, not a bound: a shape with more
 //! boundary per pixel can need more, and a run just under the limit may still fail late.
 
-use crate::error::UsageError;
+use crate::error::{OptionError, OptionKey};
 use crate::input::grid::{Grid, K_GLOBAL};
 
 /// Program, thread stacks, inputs and buffers outside the grid-sized structures.
@@ -96,7 +96,11 @@ fn cgroup_headroom() -> Option<f64> {
 /// Refuse a run whose estimate exceeds `available` bytes, naming the estimate and the largest
 /// resolution (and the matching tolerance) that would fit. Memory grows with n², so the
 /// resolution scales by the square root of the ratio.
-pub fn check(grid: &Grid, keep_start_mesh: bool, available: Option<f64>) -> Result<(), UsageError> {
+pub fn check(
+    grid: &Grid,
+    keep_start_mesh: bool,
+    available: Option<f64>,
+) -> Result<(), OptionError> {
     let need = estimate(grid, keep_start_mesh);
     let Some(avail) = available else {
         return Ok(());
@@ -108,8 +112,8 @@ pub fn check(grid: &Grid, keep_start_mesh: bool, available: Option<f64>) -> Resu
     let ratio = ((avail - BASE_BYTES).max(0.0) / (need - BASE_BYTES)).sqrt();
     let fit = ((n as f64 * ratio).floor() as u32).max(1);
     let gib = |b: f64| b / 1073741824.0;
-    Err(UsageError::new(format!(
-        "resolution {n} needs an estimated {:.1} GiB of memory (grid {}x{}x{}: depth images, classifier ranges, about {:.2e} start-mesh triangles and the simplifier), but only {:.1} GiB is available (MemAvailable, RLIMIT_AS, cgroup memory.max); nothing was allocated: use --resolution {fit} or less, or --tolerance {:.3e} or more (the estimate is made for parts that fill their box; for a thin or sparse part, --no-memory-check runs anyway)",
+    Err(OptionError::new(OptionKey::Resolution, format!(
+        "resolution {n} needs an estimated {:.1} GiB of memory (grid {}x{}x{}: depth images, classifier ranges, about {:.2e} start-mesh triangles and the simplifier), but only {:.1} GiB is available (MemAvailable, RLIMIT_AS, cgroup memory.max); nothing was allocated: use $resolution {fit} or less, or $tolerance {:.3e} or more (the estimate is made for parts that fill their box; for a thin or sparse part, $no_memory_check runs anyway)",
         gib(need),
         grid.dims[0],
         grid.dims[1],
@@ -143,14 +147,14 @@ mod tests {
         let avail = 4e9;
         let e = check(&grid(12288), false, Some(avail)).unwrap_err();
         let fit: u32 = e
-            .message
+            .worded(OptionKey::flag)
             .split("--resolution ")
             .nth(1)
             .and_then(|s| s.split(' ').next())
             .and_then(|s| s.parse().ok())
             .expect("a resolution in the message");
-        assert!(estimate(&grid(fit), false) <= avail, "{}", e.message);
-        assert!(estimate(&grid(fit + 2), false) > avail, "{}", e.message);
+        assert!(estimate(&grid(fit), false) <= avail, "{}", e);
+        assert!(estimate(&grid(fit + 2), false) > avail, "{}", e);
         assert!(check(&grid(256), false, Some(avail)).is_ok());
         assert!(check(&grid(12288), false, None).is_ok());
     }

@@ -7,7 +7,7 @@ use glam::{DMat4, DVec3, Vec3};
 use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::error::{num, InputError, UsageError};
+use crate::error::{num, InputError, OptionError, OptionKey};
 use crate::input::grid::{fit_grid, Accuracy, Grid, Overrides, Params};
 use crate::input::model::{Generator, Trajectory};
 
@@ -262,7 +262,7 @@ pub fn build(
 ) -> anyhow::Result<SweepInput> {
     let assigned = assign_poses(generator, trajectory, csv_path)?;
     let (lo, hi) = posed_bounds(generator, &assigned);
-    let (grid, params) = fit_grid(lo, hi, accuracy, overrides).map_err(UsageError::new)?;
+    let (grid, params) = fit_grid(lo, hi, accuracy, overrides)?;
     check_world_range(generator, gltf_path, csv_path, &assigned, &grid)?;
     let to_grid =
         DMat4::from_scale(DVec3::splat(1.0 / grid.h)) * DMat4::from_translation(-grid.origin());
@@ -316,10 +316,13 @@ pub fn build(
     if rounding > MAX_ROUNDING_VOXELS {
         let grid_only = rounding_term(0.0, &grid, delta_voxels);
         if grid_only > MAX_ROUNDING_VOXELS / 2.0 {
-            return Err(UsageError::new(format!(
-                "f32 rounding would reach {rounding:.3} voxels at resolution {}; use a resolution of at most 8192",
-                grid.resolution()
-            ))
+            return Err(OptionError::new(
+                OptionKey::Resolution,
+                format!(
+                    "f32 rounding would reach {rounding:.3} voxels at resolution {}; use a $resolution of at most 8192",
+                    grid.resolution()
+                ),
+            )
             .into());
         }
         return Err(InputError::new(

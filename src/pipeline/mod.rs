@@ -22,6 +22,7 @@ use outputs::refuse_outputs_on_inputs;
 use report::HAUSDORFF_SCOPE;
 
 use crate::depth::AXIS_NAMES;
+use crate::error::{OptionError, OptionKey};
 use crate::input::grid::{Accuracy, Overrides};
 use crate::input::posed::{self, SweepInput};
 use crate::io::exr_depth::{self, ExtraMeta};
@@ -64,6 +65,8 @@ pub struct Prepared {
     pub opts: RunOptions,
     pub outputs: OutputPaths,
     pub input: SweepInput,
+    /// The simplifier's bands, worked out (and checked) before any sweeping.
+    pub band: SimplifyOptions,
     pub warnings: Vec<String>,
     read_secs: f64,
     setup_secs: f64,
@@ -76,10 +79,13 @@ pub fn prepare(opts: &RunOptions) -> anyhow::Result<Prepared> {
     refuse_outputs_on_inputs(opts, &outputs.all())?;
     if !opts.overwrite {
         if let Some(existing) = outputs.all().iter().find(|p| p.exists()) {
-            return Err(crate::error::UsageError::new(format!(
-                "{} already exists; pass --overwrite to replace the outputs, or choose another --out or --name",
-                existing.display()
-            ))
+            return Err(OptionError::new(
+                OptionKey::Overwrite,
+                format!(
+                    "{} already exists; pass $overwrite to replace the outputs, or choose another $out or $name",
+                    existing.display()
+                ),
+            )
             .into());
         }
     }
@@ -97,6 +103,7 @@ pub fn prepare(opts: &RunOptions) -> anyhow::Result<Prepared> {
         opts.accuracy,
         opts.overrides,
     )?;
+    let band = SimplifyOptions::for_params(&input.params, input.grid.h, opts.target_triangles)?;
     if opts.check_memory {
         crate::input::memory::check(
             &input.grid,
@@ -108,6 +115,7 @@ pub fn prepare(opts: &RunOptions) -> anyhow::Result<Prepared> {
         opts: opts.clone(),
         outputs,
         input,
+        band,
         warnings: generator.warnings,
         read_secs: (t1 - t0).as_secs_f64(),
         setup_secs: t1.elapsed().as_secs_f64(),
@@ -155,7 +163,7 @@ pub fn execute(
     );
     let h = input.grid.h;
     let half_diag = 3f64.sqrt() / 2.0; // voxels
-    let band = SimplifyOptions::for_params(&input.params, h, opts.target_triangles)?;
+    let band = job.band;
     // The start mesh's memory goes to the simplifier; what the report and --keep-start-mesh
     // need of it is taken first.
     let triangles_start = start.triangles.len() as u64;
@@ -323,10 +331,14 @@ pub fn execute(
     if !opts.overwrite {
         // Checked again: a long sweep gives another process time to write the same names.
         if let Some(existing) = job.outputs.all().iter().find(|p| p.exists()) {
-            bail!(
-                "{} appeared while sweeping; nothing was written (pass --overwrite to replace it)",
-                existing.display()
-            );
+            return Err(OptionError::new(
+                OptionKey::Overwrite,
+                format!(
+                    "{} appeared while sweeping; nothing was written (pass $overwrite to replace it)",
+                    existing.display()
+                ),
+            )
+            .into());
         }
     }
     // Last chance to stop: dropping `staged` removes every temporary file.

@@ -4,6 +4,7 @@
 use std::path::PathBuf;
 
 use super::RunOptions;
+use crate::error::{OptionError, OptionKey};
 use crate::io::exr_depth::{self, Side};
 use crate::io::mesh_formats::MeshFormat;
 
@@ -18,16 +19,20 @@ pub fn output_stem(opts: &RunOptions) -> anyhow::Result<String> {
             .unwrap_or_default(),
     };
     if stem.contains(['/', '\\']) || stem.starts_with('.') {
-        return Err(crate::error::UsageError::new(format!(
-            "--name {stem:?} must be a plain file name without slashes or a leading dot"
-        ))
+        return Err(OptionError::new(
+            OptionKey::Name,
+            format!("$name {stem:?} must be a plain file name without slashes or a leading dot"),
+        )
         .into());
     }
     if opts.name.is_none() && stem.is_empty() {
-        return Err(crate::error::UsageError::new(format!(
-            "cannot derive an output name from {}; pass --name",
-            opts.trajectory.display()
-        ))
+        return Err(OptionError::new(
+            OptionKey::Name,
+            format!(
+                "cannot derive an output name from {}; pass $name",
+                opts.trajectory.display()
+            ),
+        )
         .into());
     }
     Ok(stem)
@@ -131,12 +136,15 @@ pub(super) fn refuse_outputs_on_inputs(
             let same_path = resolved.is_some() && resolved == *real;
             let same_file = id.is_some() && id == *input_id;
             if same_path || same_file {
-                return Err(crate::error::UsageError::new(format!(
-                    "output {} would replace the input {}{}; nothing was written: choose another --out or --name, or rename the input",
-                    out.display(),
-                    input.display(),
-                    if same_path { "" } else { " (the same file by a hard or symbolic link)" }
-                ))
+                return Err(OptionError::new(
+                    OptionKey::Out,
+                    format!(
+                        "output {} would replace the input {}{}; nothing was written: choose another $out or $name, or rename the input",
+                        out.display(),
+                        input.display(),
+                        if same_path { "" } else { " (the same file by a hard or symbolic link)" }
+                    ),
+                )
                 .into());
             }
         }

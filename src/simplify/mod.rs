@@ -89,11 +89,14 @@ impl SimplifyOptions {
             target_triangles,
         };
         if band.eps + half_diag >= params.delta / h || band.eps <= band.min_radius {
-            anyhow::bail!(
-                "ε = {} is too large for δ = {}: the simplifier needs ε + √3h/2 < δ; lower --epsilon or raise --delta",
-                params.epsilon,
-                params.delta
-            );
+            return Err(crate::error::OptionError::new(
+                crate::error::OptionKey::Epsilon,
+                format!(
+                    "ε = {} is too large for δ = {}: the simplifier needs ε + √3h/2 < δ; lower $epsilon or raise $delta",
+                    params.epsilon, params.delta
+                ),
+            )
+            .into());
         }
         Ok(band)
     }

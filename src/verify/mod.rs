@@ -26,7 +26,7 @@ use std::time::Instant;
 use glam::DVec3;
 use serde::Serialize;
 
-use crate::error::UsageError;
+use crate::error::{OptionError, OptionKey};
 use crate::io::{gltf_in, trajectory};
 use bvh::Bvh;
 use containment::{Containment, Target};
@@ -148,17 +148,19 @@ pub fn verify(opts: &VerifyOptions, progress: &dyn Progress) -> anyhow::Result<R
     let t0 = Instant::now();
     if let Some(s) = opts.spacing {
         if !(s.is_finite() && s > 0.0) {
-            return Err(UsageError::new(format!(
-                "--spacing {s} must be a positive number of world units"
-            ))
+            return Err(OptionError::new(
+                OptionKey::Spacing,
+                format!("$spacing {s} must be a positive number of world units"),
+            )
             .into());
         }
     }
     if let Some(b) = opts.bound {
         if !(b.is_finite() && b >= 0.0) {
-            return Err(UsageError::new(format!(
-                "--bound {b} must be a non-negative number of world units"
-            ))
+            return Err(OptionError::new(
+                OptionKey::Bound,
+                format!("$bound {b} must be a non-negative number of world units"),
+            )
             .into());
         }
     }
@@ -370,15 +372,15 @@ pub fn verify(opts: &VerifyOptions, progress: &dyn Progress) -> anyhow::Result<R
 /// least A / ((3√3/4)·s²) of them (an equilateral piece with circumradius s has the largest
 /// area): a lower bound on the work, so nothing that could finish is refused. (Containment
 /// refines only near the surface, so the posed generator's area says nothing certain.)
-fn check_spacing(s: f64, mesh: &[[DVec3; 3]]) -> Result<(), UsageError> {
+fn check_spacing(s: f64, mesh: &[[DVec3; 3]]) -> Result<(), OptionError> {
     let area = |t: &[DVec3; 3]| (t[1] - t[0]).cross(t[2] - t[0]).length() / 2.0;
     let mesh_area: f64 = mesh.iter().map(area).sum();
     let piece = 3f64.sqrt() * 3.0 / 4.0 * s * s;
     let samples = mesh_area / piece;
     if samples > MAX_SAMPLES {
         let fits = (mesh_area / (MAX_SAMPLES * 3f64.sqrt() * 3.0 / 4.0)).sqrt();
-        return Err(UsageError::new(format!(
-            "--spacing {s:e} would need at least {samples:.1e} samples over the mesh (area {mesh_area:.3e}), more than the limit of {MAX_SAMPLES:.0e}; use --spacing {fits:.3e} or more, or leave it out (default: mesh diagonal / 2000)"
+        return Err(OptionError::new(OptionKey::Spacing, format!(
+            "$spacing {s:e} would need at least {samples:.1e} samples over the mesh (area {mesh_area:.3e}), more than the limit of {MAX_SAMPLES:.0e}; use $spacing {fits:.3e} or more, or leave it out (default: mesh diagonal / 2000)"
         )));
     }
     Ok(())

@@ -281,7 +281,11 @@ pub struct Timings {
 pub struct ErrorInfo {
     pub file: PathBuf,
     pub line: Option<u64>,
+    /// CSV column, glTF JSON path, or for job.json the key at fault (`"tolerance"`).
     pub column: Option<String>,
+    /// What is wrong, without the file and fix (the status's `message` has them all); in
+    /// job.json errors options are spelled as their keys in double quotes.
+    pub message: String,
     pub fix: String,
 }
 
@@ -291,6 +295,7 @@ impl From<&InputError> for ErrorInfo {
             file: e.file.clone(),
             line: e.line,
             column: e.column.clone(),
+            message: e.message.clone(),
             fix: e.fix.clone(),
         }
     }

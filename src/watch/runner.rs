@@ -10,7 +10,7 @@ use std::sync::Arc;
 
 use super::protocol::{self, ErrorInfo, Fingerprint, JobId, JobOptions, State};
 use super::status::StatusFile;
-use crate::error::{InputError, UsageError};
+use crate::error::{InputError, OptionError, OptionKey};
 use crate::input::grid::Accuracy;
 use crate::pipeline::{self, Report};
 use crate::sweep::backend::{Backend, BackendChoice};
@@ -246,20 +246,37 @@ fn execute(ctx: &Context, job: &QueuedJob, observer: &JobObserver) -> anyhow::Re
     pipeline::execute(&prepared, backend, observer)
 }
 
-/// A bad option value, worded for where it came from: job.json's keys, or the daemon's flags
-/// for a drop (which has no job.json).
+/// A bad option value, worded for where it came from: job.json's keys (`"delta"`, the key
+/// also in the error's column), or the daemon's flags for a drop (which has no job.json).
 fn in_job_terms(e: anyhow::Error, job_json: Option<&Path>) -> anyhow::Error {
-    match (e.downcast::<UsageError>(), job_json) {
-        (Ok(usage), Some(path)) => InputError::new(
-            path,
-            usage.message,
-            "change that value in job.json (docs/exchange-protocol.md lists the keys and their ranges)",
-        )
-        .into(),
-        (Ok(usage), None) => anyhow::Error::new(UsageError::new(format!(
-            "{} (this drop has no job.json, so the daemon's --resolution or --tolerance applies: restart it with another value, or submit a job folder with a job.json)",
-            usage.message
-        ))),
+    let is_job_key = |k: OptionKey| protocol::JOB_KEY_LIST.contains(&k.name());
+    match (e.downcast::<OptionError>(), job_json) {
+        (Ok(option), Some(path)) => {
+            let spell = |k: OptionKey| {
+                if is_job_key(k) {
+                    format!("\"{}\"", k.name())
+                } else {
+                    format!("the daemon's {}", k.flag())
+                }
+            };
+            let error = InputError::new(
+                path,
+                option.worded(spell),
+                "change that value in job.json; docs/exchange-protocol.md lists the keys and their ranges",
+            );
+            if is_job_key(option.key) {
+                error.in_column(option.key.name()).into()
+            } else {
+                error.into()
+            }
+        }
+        (Ok(option), None) => anyhow::Error::new(OptionError::new(
+            option.key,
+            format!(
+                "{} (this drop has no job.json, so the daemon's --resolution or --tolerance applies: restart it with another value, or submit a job folder with a job.json)",
+                option.worded(OptionKey::flag)
+            ),
+        )),
         (Err(e), _) => e,
     }
 }
