@@ -52,25 +52,16 @@ fn subdivide(g: &mut Generator, k: u32) {
     }
 }
 
-/// Small deterministic generator (xorshift).
-struct Rng(u64);
-impl Rng {
-    fn f(&mut self) -> f64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        (self.0 >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
-    }
-}
-
 fn poses(workload: &str, size: f64, count: usize) -> Vec<DMat4> {
-    let mut rng = Rng(0x5EED);
+    // Fixed seed: every run draws the same poses. Uniform in [-1, 1).
+    let mut rng = fastrand::Rng::with_seed(0x5EED);
+    let mut f = move || rng.f64() * 2.0 - 1.0;
     (0..count)
         .map(|k| match workload {
             "vibrating" => {
-                let axis = DVec3::new(rng.f(), rng.f(), rng.f()).normalize_or(DVec3::X);
-                let rot = DQuat::from_axis_angle(axis, 0.5f64.to_radians() * rng.f());
-                let t = DVec3::new(rng.f(), rng.f(), rng.f()) * 0.002 * size;
+                let axis = DVec3::new(f(), f(), f()).normalize_or(DVec3::X);
+                let rot = DQuat::from_axis_angle(axis, 0.5f64.to_radians() * f());
+                let t = DVec3::new(f(), f(), f()) * 0.002 * size;
                 DMat4::from_rotation_translation(rot, t)
             }
             _ => {

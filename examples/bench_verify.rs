@@ -20,16 +20,6 @@ use sweptvol::sweep::backend::{Backend, BackendChoice};
 use sweptvol::sweep::Silent;
 use sweptvol::verify::{self, VerifyOptions};
 
-struct Rng(u64);
-impl Rng {
-    fn f(&mut self) -> f64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        (self.0 >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
-    }
-}
-
 /// A .glb with one node and one indexed triangle primitive.
 fn write_glb(path: &Path, positions: &[Vec3], tris: &[[u32; 3]]) {
     let mut bin: Vec<u8> = positions
@@ -143,13 +133,15 @@ fn main() -> anyhow::Result<()> {
             .iter()
             .fold((Vec3::MAX, Vec3::MIN), |(l, h), v| (l.min(*v), h.max(*v)));
         let (centre, size) = (((lo + hi) / 2.0).as_dvec3(), (hi - lo).max_element() as f64);
-        let mut rng = Rng(0x5EED);
+        // Fixed seed: every run draws the same poses. Uniform in [-1, 1).
+        let mut rng = fastrand::Rng::with_seed(0x5EED);
+        let mut f = move || rng.f64() * 2.0 - 1.0;
         let mut text = String::from("tx,ty,tz,qw,qx,qy,qz\n");
         for _ in 0..poses {
-            let axis = DVec3::new(rng.f(), rng.f(), rng.f()).normalize_or(DVec3::X);
-            let q = DQuat::from_axis_angle(axis, 0.5f64.to_radians() * rng.f());
+            let axis = DVec3::new(f(), f(), f()).normalize_or(DVec3::X);
+            let q = DQuat::from_axis_angle(axis, 0.5f64.to_radians() * f());
             // Rotation about the centre: t = c + jitter - R·c.
-            let t = centre + DVec3::new(rng.f(), rng.f(), rng.f()) * 0.002 * size - q * centre;
+            let t = centre + DVec3::new(f(), f(), f()) * 0.002 * size - q * centre;
             text += &format!("{},{},{},{},{},{},{}\n", t.x, t.y, t.z, q.w, q.x, q.y, q.z);
         }
         std::fs::write(&csv, text)?;

@@ -62,20 +62,20 @@ fn iterations() -> usize {
 /// One mutation of `seed`: 1 to 4 edits.
 fn mutate(rng: &mut Rng, seed: &[u8]) -> Vec<u8> {
     let mut v = seed.to_vec();
-    for _ in 0..1 + rng.below(4) {
+    for _ in 0..1 + rng.u64(..4) {
         let len = v.len().max(1) as u64;
-        let at = rng.below(len) as usize;
+        let at = rng.u64(..len) as usize;
         let last = v.len().saturating_sub(1);
-        match rng.below(7) {
-            0 if !v.is_empty() => v[at.min(last)] ^= 1 << rng.below(8),
-            1 if !v.is_empty() => v[at.min(last)] = rng.below(256) as u8,
+        match rng.u64(..7) {
+            0 if !v.is_empty() => v[at.min(last)] ^= 1 << rng.u64(..8),
+            1 if !v.is_empty() => v[at.min(last)] = rng.u64(..256) as u8,
             2 => v.truncate(at),
             3 => {
-                let end = (at + 1 + rng.below(64) as usize).min(v.len());
+                let end = (at + 1 + rng.u64(..64) as usize).min(v.len());
                 v.drain(at.min(end)..end);
             }
             4 => {
-                let t = TOKENS[rng.below(TOKENS.len() as u64) as usize];
+                let t = TOKENS[rng.usize(..TOKENS.len())];
                 let at = at.min(v.len());
                 v.splice(at..at, t.iter().copied());
             }
@@ -85,14 +85,14 @@ fn mutate(rng: &mut Rng, seed: &[u8]) -> Vec<u8> {
                 let end = (at..v.len())
                     .find(|&i| !v[i].is_ascii_digit())
                     .unwrap_or(v.len());
-                let t = TOKENS[rng.below(TOKENS.len() as u64) as usize];
+                let t = TOKENS[rng.usize(..TOKENS.len())];
                 v.splice(at..end, t.iter().copied());
             }
             _ => {
                 // Repeat a slice (length fields now disagree with the data).
-                let end = (at + 1 + rng.below(256) as usize).min(v.len());
+                let end = (at + 1 + rng.u64(..256) as usize).min(v.len());
                 let piece = v[at.min(end)..end].to_vec();
-                let to = rng.below(v.len() as u64 + 1) as usize;
+                let to = rng.usize(..=v.len());
                 v.splice(to..to, piece);
             }
         }
@@ -111,7 +111,7 @@ fn fuzz(
 ) {
     use std::sync::mpsc;
     let dir = std::env::temp_dir();
-    let mut rng = Rng(rng_seed);
+    let mut rng = Rng::with_seed(rng_seed);
     let (mut accepted, mut slowest) = (0usize, Duration::ZERO);
     let n = iterations();
     let (to_worker, inputs) = mpsc::channel::<Vec<u8>>();

@@ -349,7 +349,10 @@ fn bad_option_values_exit_2_and_bad_files_say_what_they_are() {
     let t = write(d, "part.csv", CSV);
     let out = d.join("results");
     for (extra, needle) in [
-        (&["--tolerance", "-1"][..], "--tolerance -1 must be a positive"),
+        (
+            &["--tolerance", "-1"][..],
+            "--tolerance -1 must be a positive",
+        ),
         (&["--resolution", "4"], "--resolution 4 is outside"),
         (&["--delta", "-0.5"], "--delta -0.5 must be a positive"),
         (

@@ -54,7 +54,7 @@ fn write_glb(dir: &Path, name: &str, mesh: &Mesh) -> PathBuf {
 fn random_set(rng: &mut Rng, dims: [usize; 3], density: f64) -> DenseSet {
     let mut set = DenseSet::new(dims);
     for c in set.cells.iter_mut() {
-        *c = rng.f() < density;
+        *c = rng.f64() < density;
     }
     set
 }
@@ -63,7 +63,7 @@ fn random_set(rng: &mut Rng, dims: [usize; 3], density: f64) -> DenseSet {
 fn joined_voxel_sets_are_solids_to_trimesh_and_manifold3d() {
     let Some(python) = python() else { return };
     let dir = tempfile::tempdir().unwrap();
-    let mut rng = Rng(0x5eed_1234_abcd_0001);
+    let mut rng = Rng::with_seed(0x5eed_1234_abcd_0001);
     let mut sets = vec![
         (
             "edge-pair",
@@ -126,7 +126,7 @@ fn write_job(dir: &Path, name: &str, mesh: &Mesh, poses: &[glam::DMat4]) -> (Pat
 fn random_sweeps_are_solids_to_trimesh_and_manifold3d() {
     let Some(python) = python() else { return };
     let dir = tempfile::tempdir().unwrap();
-    let mut rng = Rng(0x0dd_ba11_2024_0003);
+    let mut rng = Rng::with_seed(0x0dd_ba11_2024_0003);
     let mut outputs = Vec::new();
     let mut joined = 0;
     for seed in 0..6 {

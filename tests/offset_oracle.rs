@@ -5,7 +5,7 @@
 //! the budget.
 
 mod common;
-use common::{line_interval, Rng, V3};
+use common::{line_interval, Draw, Rng, V3};
 use sweptvol::sweep::offset::PreparedTriangle;
 
 /// The ray-cast share of the rounding term for coordinates up to `b` grid units (job.rs).
@@ -16,7 +16,7 @@ fn budget(b: f64) -> f64 {
 /// A random triangle near the ray (0, 0, t) (coordinates relative to the ray, grid units), of
 /// one of several adversarial kinds.
 fn random_case(rng: &mut Rng, d: f64, far: f64) -> [V3; 3] {
-    let size = [0.0, 0.3, 2.0, 20.0, 300.0][rng.below(5) as usize];
+    let size = [0.0, 0.3, 2.0, 20.0, 300.0][rng.u64(..5) as usize];
     let a_base = rng.range(0.0, far);
     let pt = |rng: &mut Rng| -> V3 {
         [
@@ -26,7 +26,7 @@ fn random_case(rng: &mut Rng, d: f64, far: f64) -> [V3; 3] {
         ]
     };
     let mut t = [pt(rng), pt(rng), pt(rng)];
-    match rng.below(9) {
+    match rng.u64(..9) {
         0 => t[1] = t[0],   // segment
         1 => t = [t[0]; 3], // point
         2 => {
@@ -101,7 +101,7 @@ fn ray_cast_contains_exact_offset_and_stays_tight() {
     let mut worst_fraction: f64 = 0.0;
     let mut hits = 0;
     for seed in 1..=60_000u64 {
-        let mut rng = Rng(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1);
+        let mut rng = Rng::with_seed(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1);
         let far = [10.0, 1500.0, 16000.0][(seed % 3) as usize];
         let d = if seed % 2 == 0 {
             sweptvol::input::grid::K_DELTA
@@ -111,8 +111,8 @@ fn ray_cast_contains_exact_offset_and_stays_tight() {
         let rel = random_case(&mut rng, d, far);
         // Put the ray at a pixel centre anywhere in the grid: the sweep computes q - p itself.
         let (pu, pv) = (
-            rng.below(far as u64) as f64 + 0.5,
-            rng.below(far as u64) as f64 + 0.5,
+            rng.u64(..far as u64) as f64 + 0.5,
+            rng.u64(..far as u64) as f64 + 0.5,
         );
         let abs: [[f32; 3]; 3] = rel.map(|v| [(v[0] + pu) as f32, (v[1] + pv) as f32, v[2] as f32]);
         // The oracle sees exactly the f32 triangle, relative to the ray (exact in f64).

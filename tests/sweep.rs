@@ -6,7 +6,8 @@ mod common;
 use std::path::Path;
 
 use common::{
-    build, check_samples, generator, line_interval, posed_grid_triangles, tetrahedron, Rng, V3,
+    build, check_samples, generator, line_interval, posed_grid_triangles, tetrahedron, Draw, Rng,
+    V3,
 };
 use glam::{DMat4, DVec3};
 use sweptvol::depth::{DepthImages, COLUMN_AXIS, ROW_AXIS};
@@ -297,7 +298,7 @@ fn closed_box_translated_along_a_line() {
 
 #[test]
 fn rotation_about_an_axis_matches_the_oracle() {
-    let mut rng = Rng(7);
+    let mut rng = Rng::with_seed(7);
     let g = tetrahedron(&mut rng, 0.15, [0.6, 0.0, 0.1]);
     let poses: Vec<DMat4> = (0..24)
         .map(|k| DMat4::from_rotation_y(k as f64 * std::f64::consts::TAU / 24.0))
@@ -309,16 +310,16 @@ fn rotation_about_an_axis_matches_the_oracle() {
 
 /// Random generator (a few triangles, some degenerate) and random affine trajectory.
 fn random_case(seed: u64) -> (Generator, Vec<DMat4>) {
-    let mut rng = Rng(seed * 0x9E37_79B9 + 1);
+    let mut rng = Rng::with_seed(seed * 0x9E37_79B9 + 1);
     let mut positions = Vec::new();
     let mut triangles = Vec::new();
-    for k in 0..(2 + rng.below(5)) as u32 {
+    for k in 0..(2 + rng.u64(..5)) as u32 {
         let base = [
             rng.range(-1.0, 1.0),
             rng.range(-1.0, 1.0),
             rng.range(-1.0, 1.0),
         ];
-        let s = [0.01, 0.2, 0.8][rng.below(3) as usize];
+        let s = [0.01, 0.2, 0.8][rng.u64(..3) as usize];
         for _ in 0..3 {
             positions.push([
                 (base[0] + rng.range(-s, s)) as f32,
@@ -327,13 +328,13 @@ fn random_case(seed: u64) -> (Generator, Vec<DMat4>) {
             ]);
         }
         let t = [3 * k, 3 * k + 1, 3 * k + 2];
-        triangles.push(match rng.below(6) {
+        triangles.push(match rng.u64(..6) {
             0 => [t[0], t[0], t[0]],
             1 => [t[0], t[1], t[1]],
             _ => t,
         });
     }
-    let poses = (0..(1 + rng.below(6)))
+    let poses = (0..(1 + rng.u64(..6)))
         .map(|_| {
             let axis = DVec3::new(
                 rng.range(-1.0, 1.0),
@@ -375,7 +376,7 @@ fn sampled_points_of_posed_triangles_are_inside_their_pixels() {
         let (g, poses) = random_case(seed);
         let input = build(&g, &poses, 32 + seed as u32 % 64);
         let images = cpu::sweep(&input, &Silent).unwrap();
-        let mut rng = Rng(seed);
+        let mut rng = Rng::with_seed(seed);
         checked += check_samples(
             &input,
             &images,
@@ -477,7 +478,7 @@ fn gpu_matches_cpu_twin_on_random_sweeps() {
         let c = cpu::sweep(&input, &Silent).unwrap();
         let gi = gpu.sweep(&input, &Silent).unwrap();
         hits += assert_same(&gi, &c, input.rounding, input.radius as f64);
-        let mut rng = Rng(seed);
+        let mut rng = Rng::with_seed(seed);
         check_samples(
             &input,
             &gi,
@@ -486,7 +487,7 @@ fn gpu_matches_cpu_twin_on_random_sweeps() {
         );
     }
     // A larger case: many poses of a closed mesh, several dispatches' worth of work.
-    let mut rng = Rng(99);
+    let mut rng = Rng::with_seed(99);
     let g = tetrahedron(&mut rng, 0.3, [0.2, 0.1, 0.0]);
     let poses: Vec<DMat4> = (0..500)
         .map(|k| {
@@ -504,7 +505,7 @@ fn gpu_matches_cpu_twin_on_random_sweeps() {
 
 #[test]
 fn node_rows_move_only_their_own_part_and_static_parts_stay() {
-    let mut rng = Rng(31);
+    let mut rng = Rng::with_seed(31);
     let mut g = tetrahedron(&mut rng, 0.2, [0.0, 0.0, 0.0]);
     let mut other = tetrahedron(&mut rng, 0.2, [0.0, 0.0, 0.0]).parts.remove(0);
     other.node_name = Some("fixed".into());

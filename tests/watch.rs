@@ -881,9 +881,13 @@ fn absurd_job_json_values_fail_their_job_by_name() {
         assert_eq!(check_visible_outputs(job, ""), 0, "{}", job.display());
         // A value the library refuses is named by its job.json key, never by a CLI flag, and
         // the key is the error's column (the add-on words it by its panel field).
-        if ["a-huge-resolution", "b-zero-resolution", "d-negative-tolerance"]
-            .iter()
-            .any(|n| job.ends_with(n))
+        if [
+            "a-huge-resolution",
+            "b-zero-resolution",
+            "d-negative-tolerance",
+        ]
+        .iter()
+        .any(|n| job.ends_with(n))
         {
             assert_eq!(s["error"]["column"], *needle, "{s:#}");
             let quoted = format!("\"{needle}\"");

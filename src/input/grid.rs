@@ -289,8 +289,7 @@ mod tests {
         let e = fit(Some(0.001), None).unwrap_err();
         assert_eq!(e.key, OptionKey::Delta);
         assert!(
-            e.to_string()
-                .starts_with("δ = 0.001 must exceed ε + σ"),
+            e.to_string().starts_with("δ = 0.001 must exceed ε + σ"),
             "{e}"
         );
         assert!(

@@ -285,13 +285,8 @@ pub(crate) mod test_support {
             h: 1.0,
             dims,
         };
-        let mut state = seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) | 1;
-        let mut unit = move || {
-            state = state
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (state >> 11) as f32 / (1u64 << 53) as f32
-        };
+        let mut rng = fastrand::Rng::with_seed(seed);
+        let mut unit = move || rng.f32();
         let mut images = DepthImages::empty(grid);
         for img in images.images.iter_mut() {
             let n = dims[img.axis] as f32;
@@ -314,13 +309,8 @@ mod tests {
     /// ends and blocks that hang over every face and corner of it.
     #[test]
     fn blocks_agree_with_single_voxels() {
-        let mut state = 0x2545_f491_4f6c_dd1du64;
-        let mut unit = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 11) as f32 / (1u64 << 53) as f32
-        };
+        let mut rng = fastrand::Rng::with_seed(0x2545_f491_4f6c_dd1d);
+        let mut unit = move || rng.f32();
         let dims = [7, 6, 5];
         // Some rays' ranges start or end beyond 2^31 voxels (stored as i32::MAX).
         let ranges: Vec<Option<(f32, f32)>> = (0..3 * 64)

@@ -382,15 +382,12 @@ mod tests {
         }
     }
 
-    /// A reproducible xorshift stream of voxel sets.
+    /// A random voxel set, reproducible from `seed`.
     fn random_set(dims: [usize; 3], density: f64, seed: u64) -> DenseSet {
-        let mut state = seed | 1;
+        let mut rng = fastrand::Rng::with_seed(seed);
         let mut set = DenseSet::new(dims);
         for c in set.cells.iter_mut() {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            *c = ((state >> 11) as f64 / (1u64 << 53) as f64) < density;
+            *c = rng.f64() < density;
         }
         set
     }

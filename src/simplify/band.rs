@@ -516,13 +516,8 @@ mod tests {
                 && !cls.inside(0, 1, 2)
                 && !cls.inside(3, 3, 4)
         );
-        let mut seed = 7u64;
-        let mut rnd = |lo: f64, hi: f64| {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            lo + (hi - lo) * ((seed >> 11) as f64 / (1u64 << 53) as f64)
-        };
+        let mut rng = fastrand::Rng::with_seed(7);
+        let mut rnd = |lo: f64, hi: f64| lo + (hi - lo) * rng.f64();
         for _ in 0..5000 {
             let p = DVec3::new(rnd(0.0, 6.0), rnd(0.0, 5.0), rnd(0.0, 7.0));
             let exact = box_dist(p);
@@ -540,14 +535,10 @@ mod tests {
         v.iter().zip(w).map(|(p, w)| *p * (w / sum)).sum()
     }
 
-    fn lcg(seed: u64) -> impl FnMut() -> f64 {
-        let mut s = seed;
-        move || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (s >> 11) as f64 / (1u64 << 53) as f64
-        }
+    /// Uniform numbers in [0, 1), reproducible from `seed`.
+    fn uniform(seed: u64) -> impl FnMut() -> f64 {
+        let mut rng = fastrand::Rng::with_seed(seed);
+        move || rng.f64()
     }
 
     #[test]
@@ -560,7 +551,7 @@ mod tests {
             } else {
                 Proximity::new(&cls)
             };
-            let mut rnd = lcg(seed + 100);
+            let mut rnd = uniform(seed + 100);
             let mut near = 0;
             for _ in 0..20_000 {
                 let p = DVec3::new(rnd() * 16.0 - 1.0, rnd() * 14.0 - 1.0, rnd() * 15.0 - 1.0);
@@ -617,7 +608,7 @@ mod tests {
         for seed in 0..3 {
             let cls = random_at([14, 14, 14], seed);
             let mut prox = Proximity::new(&cls);
-            let mut rnd = lcg(seed + 7);
+            let mut rnd = uniform(seed + 7);
             for _ in 0..3000 {
                 let c = DVec3::new(rnd(), rnd(), rnd()) * 14.0;
                 let size = 0.2 + 3.0 * rnd();
@@ -655,7 +646,7 @@ mod tests {
         for seed in 0..3 {
             let cls = random_at([20, 20, 20], seed + 10);
             let mut prox = Proximity::new(&cls);
-            let mut rnd = lcg(seed + 70);
+            let mut rnd = uniform(seed + 70);
             for _ in 0..2000 {
                 let c = DVec3::splat(3.0) + DVec3::new(rnd(), rnd(), rnd()) * 14.0;
                 let size = 0.2 + 4.0 * rnd();

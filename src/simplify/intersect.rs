@@ -469,14 +469,10 @@ pub fn boxes_meet(s: &[DVec3], t: &[DVec3]) -> bool {
 mod tests {
     use super::*;
 
-    /// Uniform numbers in [0, 1) from a xorshift generator.
-    fn xorshift(mut seed: u64) -> impl FnMut() -> f64 {
-        move || {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            (seed >> 11) as f64 / (1u64 << 53) as f64
-        }
+    /// Uniform numbers in [0, 1), reproducible from `seed`.
+    fn uniform(seed: u64) -> impl FnMut() -> f64 {
+        let mut rng = fastrand::Rng::with_seed(seed);
+        move || rng.f64()
     }
 
     /// A uniform random point of triangle `t`.
@@ -554,13 +550,7 @@ mod tests {
     /// one to the other, and is within the samples' covering radius of their minimum.
     #[test]
     fn triangle_distance_matches_dense_samples() {
-        let mut seed = 11u64;
-        let mut rnd = move || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (seed >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rnd = uniform(11);
         let k = 60;
         let (mut hits, mut misses) = (0, 0);
         for _ in 0..300 {
@@ -606,7 +596,7 @@ mod tests {
     /// triangles, many of them passing the triangle's plane or edges within a few TOUCH.
     #[test]
     fn segment_near_agrees_with_the_distance() {
-        let mut f = xorshift(0x9e37_79b9_7f4a_7c15);
+        let mut f = uniform(0x9e37_79b9_7f4a_7c15);
         let (mut near, mut far, mut close_calls) = (0, 0, 0);
         for round in 0..200_000 {
             let t: [DVec3; 3] = std::array::from_fn(|_| v(f() * 4.0, f() * 4.0, f() * 4.0));
@@ -647,7 +637,7 @@ mod tests {
     /// inserted one is (most of its box's cells are skipped).
     #[test]
     fn hash_finds_every_triangle_through_a_point_of_an_inserted_one() {
-        let mut f = xorshift(3);
+        let mut f = uniform(3);
         let mut hash = TriangleHash::new(2.0);
         let mut tris = Vec::new();
         for id in 0..200u32 {
@@ -686,7 +676,7 @@ mod tests {
     /// pruned, some removed) are still found through every point of where they are now.
     #[test]
     fn hash_finds_triangles_after_moves_and_prunes() {
-        let mut f = xorshift(11);
+        let mut f = uniform(11);
         let mut hash = TriangleHash::new(2.0);
         let mut tris: Vec<Option<[DVec3; 3]>> = Vec::new();
         for id in 0..600u32 {

@@ -300,13 +300,8 @@ mod tests {
 
     #[test]
     fn eight_lanes_equal_the_scalar_ray_cast_bit_for_bit() {
-        let mut seed = 0x1234_5678_9abc_def0u64;
-        let mut rnd = |lo: f32, hi: f32| {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            lo + (hi - lo) * ((seed >> 40) as f32 / (1u64 << 24) as f32)
-        };
+        let mut rng = fastrand::Rng::with_seed(0x1234_5678_9abc_def0);
+        let mut rnd = |lo: f32, hi: f32| lo + (hi - lo) * rng.f32();
         let mut hits = 0;
         for case in 0..20_000 {
             let mut q = [[0f32; 3]; 3];

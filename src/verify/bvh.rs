@@ -237,19 +237,10 @@ fn build_node(
 mod tests {
     use super::*;
 
-    fn rng(state: &mut u64) -> f64 {
-        *state ^= *state << 13;
-        *state ^= *state >> 7;
-        *state ^= *state << 17;
-        (*state >> 11) as f64 / (1u64 << 53) as f64
-    }
-
     #[test]
     fn nearest_and_any_within_match_brute_force() {
-        let mut s = 0x1234_5678_9abc_def1u64;
-        let mut v = |sc: f64| {
-            DVec3::new(rng(&mut s), rng(&mut s), rng(&mut s)) * sc - DVec3::splat(sc / 2.0)
-        };
+        let mut rng = crate::verify::geom::Rng::with_seed(0x1234_5678_9abc_def1);
+        let mut v = |sc: f64| crate::verify::geom::cube_point(&mut rng, sc / 2.0);
         let tris: Vec<[DVec3; 3]> = (0..400)
             .map(|_| {
                 let c = v(10.0);

@@ -221,23 +221,14 @@ pub(crate) fn box_triangles(lo: DVec3, hi: DVec3) -> Vec<[DVec3; 3]> {
         .collect()
 }
 
-/// Small deterministic generator for the verifier's tests (xorshift*, seed nonzero).
+/// The verifier's tests draw from fastrand's generator with a fixed seed; this adds points.
 #[cfg(test)]
-pub(crate) struct Rng(pub u64);
+pub(crate) use fastrand::Rng;
 
+/// A uniform point of the cube [-s, s)³.
 #[cfg(test)]
-impl Rng {
-    /// Uniform in [0, 1).
-    pub fn f(&mut self) -> f64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        (self.0.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 11) as f64 / (1u64 << 53) as f64
-    }
-    /// Uniform in the cube [-s, s)³.
-    pub fn v(&mut self, s: f64) -> DVec3 {
-        DVec3::new(self.f() - 0.5, self.f() - 0.5, self.f() - 0.5) * 2.0 * s
-    }
+pub(crate) fn cube_point(rng: &mut Rng, s: f64) -> DVec3 {
+    DVec3::new(rng.f64() - 0.5, rng.f64() - 0.5, rng.f64() - 0.5) * 2.0 * s
 }
 
 #[cfg(test)]
@@ -246,10 +237,14 @@ mod tests {
 
     #[test]
     fn triangle_distance_is_the_minimum_over_dense_samples() {
-        let mut rng = Rng(7);
+        let mut rng = Rng::with_seed(7);
         for _ in 0..300 {
-            let t = [rng.v(1.0), rng.v(1.0), rng.v(1.0)];
-            let p = rng.v(2.0);
+            let t = [
+                cube_point(&mut rng, 1.0),
+                cube_point(&mut rng, 1.0),
+                cube_point(&mut rng, 1.0),
+            ];
+            let p = cube_point(&mut rng, 2.0);
             let d = dist_triangle(p, t[0], t[1], t[2]);
             let mut best = f64::INFINITY;
             let n = 60;
@@ -268,9 +263,13 @@ mod tests {
 
     #[test]
     fn singular_bounds_enclose_stretch_on_random_affine_maps() {
-        let mut rng = Rng(11);
+        let mut rng = Rng::with_seed(11);
         for k in 0..500 {
-            let mut m = [rng.v(3.0), rng.v(3.0), rng.v(3.0)];
+            let mut m = [
+                cube_point(&mut rng, 3.0),
+                cube_point(&mut rng, 3.0),
+                cube_point(&mut rng, 3.0),
+            ];
             if k % 5 == 0 {
                 m[2] = m[0] * 0.5 + m[1] * 1e-7; // nearly singular
             }
@@ -278,7 +277,7 @@ mod tests {
             let apply = |x: DVec3| m[0] * x.x + m[1] * x.y + m[2] * x.z;
             let (mut hi, mut lo) = (0.0f64, f64::INFINITY);
             for _ in 0..2000 {
-                let x = rng.v(1.0).normalize();
+                let x = cube_point(&mut rng, 1.0).normalize();
                 let s = apply(x).length();
                 hi = hi.max(s);
                 lo = lo.min(s);
@@ -298,10 +297,10 @@ mod tests {
             DVec3::new(0.0, 0.0, 1.0),
         ];
         let faces = [[0, 2, 1], [0, 1, 3], [1, 2, 3], [2, 0, 3]];
-        let mut rng = Rng(3);
+        let mut rng = Rng::with_seed(3);
         for _ in 0..200 {
-            let p = rng.v(1.0) + DVec3::splat(0.3);
-            let d = rng.v(1.0);
+            let p = cube_point(&mut rng, 1.0) + DVec3::splat(0.3);
+            let d = cube_point(&mut rng, 1.0);
             let mut sum = 0;
             let mut sure = true;
             let mut w = 0.0;

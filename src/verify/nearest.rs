@@ -291,7 +291,7 @@ fn box_gap(a_lo: DVec3, a_hi: DVec3, b_lo: DVec3, b_hi: DVec3) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::verify::geom::Rng;
+    use crate::verify::geom::{cube_point, Rng};
     use crate::verify::poses::PartPose;
 
     /// A random part: `n` small triangles scattered in the unit cube, posed by `poses` random
@@ -299,21 +299,25 @@ mod tests {
     fn random_part(rng: &mut Rng, n: usize, poses: usize, shear: f64) -> PosedPart {
         let tris: Vec<[DVec3; 3]> = (0..n)
             .map(|_| {
-                let c = rng.v(1.0);
-                [c, c + 0.2 * rng.v(1.0), c + 0.2 * rng.v(1.0)]
+                let c = cube_point(rng, 1.0);
+                [
+                    c,
+                    c + 0.2 * cube_point(rng, 1.0),
+                    c + 0.2 * cube_point(rng, 1.0),
+                ]
             })
             .collect();
         let base = DMat4::from_rotation_translation(
-            glam::DQuat::from_axis_angle(rng.v(1.0).normalize(), 1.0),
-            rng.v(1.0),
+            glam::DQuat::from_axis_angle(cube_point(rng, 1.0).normalize(), 1.0),
+            cube_point(rng, 1.0),
         );
         let poses: Vec<PartPose> = (0..poses)
             .map(|_| {
                 let jitter = DMat4::from_cols(
-                    (DVec3::X + shear * rng.v(1.0)).extend(0.0),
-                    (DVec3::Y + shear * rng.v(1.0)).extend(0.0),
-                    (DVec3::Z + shear * rng.v(1.0)).extend(0.0),
-                    (0.05 * rng.v(1.0)).extend(1.0),
+                    (DVec3::X + shear * cube_point(rng, 1.0)).extend(0.0),
+                    (DVec3::Y + shear * cube_point(rng, 1.0)).extend(0.0),
+                    (DVec3::Z + shear * cube_point(rng, 1.0)).extend(0.0),
+                    (0.05 * cube_point(rng, 1.0)).extend(1.0),
                 );
                 PartPose::new(base * jitter, None, None)
             })
@@ -334,13 +338,13 @@ mod tests {
 
     #[test]
     fn nearest_matches_brute_force_within_tolerance() {
-        let mut rng = Rng(11);
+        let mut rng = Rng::with_seed(11);
         for (shear, tol) in [(0.0, 0.0), (0.02, 0.0), (0.1, 0.01), (0.3, 0.05)] {
             let parts = vec![random_part(&mut rng, 60, 50, shear)];
             let frames: Vec<Frames> = parts.iter().map(Frames::new).collect();
             let mut scratch = Scratch::default();
             for _ in 0..60 {
-                let p = 2.0 * rng.v(1.0);
+                let p = 2.0 * cube_point(&mut rng, 1.0);
                 let truth = brute_force(&parts[0], p);
                 let (hit, lower) =
                     nearest(&parts, &frames, &mut scratch, p, f64::NEG_INFINITY, tol);
@@ -363,7 +367,7 @@ mod tests {
     /// to visiting every pair) instead of indexing past the triangles (issue 14).
     #[test]
     fn singular_poses_do_not_panic() {
-        let mut rng = Rng(3);
+        let mut rng = Rng::with_seed(3);
         let mut part = random_part(&mut rng, 20, 4, 0.0);
         for pose in &mut part.poses {
             *pose = PartPose::new(DMat4::from_scale(DVec3::new(1.0, 0.0, 1.0)), None, None);
@@ -373,7 +377,7 @@ mod tests {
         let frames: Vec<Frames> = parts.iter().map(Frames::new).collect();
         let mut scratch = Scratch::default();
         for _ in 0..20 {
-            let p = 2.0 * rng.v(1.0);
+            let p = 2.0 * cube_point(&mut rng, 1.0);
             let (hit, _) = nearest(&parts, &frames, &mut scratch, p, f64::NEG_INFINITY, 0.0);
             assert!((hit.dist - brute_force(&parts[0], p)).abs() <= 1e-12);
         }
@@ -381,14 +385,14 @@ mod tests {
 
     #[test]
     fn threshold_queries_stop_at_a_close_enough_triangle_or_prove_none() {
-        let mut rng = Rng(5);
+        let mut rng = Rng::with_seed(5);
         let parts = vec![random_part(&mut rng, 40, 80, 0.05)];
         let frames: Vec<Frames> = parts.iter().map(Frames::new).collect();
         let mut scratch = Scratch::default();
         for _ in 0..100 {
-            let p = 2.0 * rng.v(1.0);
+            let p = 2.0 * cube_point(&mut rng, 1.0);
             let truth = brute_force(&parts[0], p);
-            let threshold = truth + 0.3 * (2.0 * rng.f() - 1.0);
+            let threshold = truth + 0.3 * (2.0 * rng.f64() - 1.0);
             let (hit, lower) = nearest(&parts, &frames, &mut scratch, p, threshold, 0.0);
             if truth <= threshold {
                 assert!(hit.dist <= threshold, "{} > {threshold}", hit.dist);

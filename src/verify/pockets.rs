@@ -400,11 +400,15 @@ mod tests {
         // marches at a step of t/8 with exact distances to every triangle and decides with
         // margins: a ray whose closest approach (sampled) is below 0.9 t is blocked; one that
         // stays above 1.1 t (sampled, plus the step's reach) escapes.
-        let mut rng = geom::Rng(11);
+        let mut rng = geom::Rng::with_seed(11);
         let mut tris = Vec::new();
         for _ in 0..60 {
-            let c = rng.v(8.0);
-            tris.push([c, c + rng.v(0.6), c + rng.v(0.6)]);
+            let c = geom::cube_point(&mut rng, 8.0);
+            tris.push([
+                c,
+                c + geom::cube_point(&mut rng, 0.6),
+                c + geom::cube_point(&mut rng, 0.6),
+            ]);
         }
         let poses = vec![PartPose::new(DMat4::IDENTITY, Some(0), Some(2))];
         let parts = [PosedPart::new(0, "p".into(), tris.clone(), poses)];
@@ -418,8 +422,8 @@ mod tests {
         };
         let mut checked = 0;
         for _ in 0..300 {
-            let o = rng.v(8.0);
-            let (axis, sign, _) = DIRECTIONS[(rng.f() * 6.0) as usize % 6];
+            let o = geom::cube_point(&mut rng, 8.0);
+            let (axis, sign, _) = DIRECTIONS[(rng.f64() * 6.0) as usize % 6];
             let mut closest = f64::INFINITY;
             let mut k = 0.0;
             loop {

@@ -313,13 +313,8 @@ mod tests {
 
     #[test]
     fn cluster_spread_bounds_every_pose() {
-        let mut s = 5u64;
-        let mut f = || {
-            s ^= s << 13;
-            s ^= s >> 7;
-            s ^= s << 17;
-            (s >> 11) as f64 / (1u64 << 53) as f64 - 0.5
-        };
+        let mut rng = fastrand::Rng::with_seed(5);
+        let mut f = || rng.f64() - 0.5;
         let poses: Vec<PartPose> = (0..200)
             .map(|_| {
                 let m = DMat4::from_cols(

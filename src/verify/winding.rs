@@ -107,13 +107,8 @@ mod tests {
         assert!((exact(&tris, DVec3::splat(0.5)) - 1.0).abs() < 1e-12);
         let bvh = Bvh::build(tris.clone(), 2);
         let w = Winding::new(&bvh, &[]);
-        let mut s = 99u64;
-        let mut f = || {
-            s ^= s << 13;
-            s ^= s >> 7;
-            s ^= s << 17;
-            (s >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rng = fastrand::Rng::with_seed(99);
+        let mut f = || rng.f64();
         for _ in 0..500 {
             let p = DVec3::new(f(), f(), f()) * 2.0 - DVec3::splat(0.5);
             assert!((w.at(p) - exact(&tris, p)).abs() < 1e-9, "{p}");

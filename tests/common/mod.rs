@@ -113,24 +113,18 @@ pub fn line_interval(
     Some((bisect(tm, lo0), bisect(tm, hi0)))
 }
 
-/// Small deterministic PRNG (xorshift64*), so failures reproduce from the printed seed.
-pub struct Rng(pub u64);
-impl Rng {
-    pub fn next_u64(&mut self) -> u64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
-    }
-    /// Uniform in [0, 1).
-    pub fn f(&mut self) -> f64 {
-        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
-    }
-    pub fn range(&mut self, lo: f64, hi: f64) -> f64 {
-        lo + (hi - lo) * self.f()
-    }
-    pub fn below(&mut self, n: u64) -> u64 {
-        self.next_u64() % n
+/// The tests draw from fastrand's generator with a fixed seed, so failures reproduce from the
+/// printed seed; [`Draw`] adds the one draw they need beyond its own.
+pub use fastrand::Rng;
+
+pub trait Draw {
+    /// Uniform in [lo, hi).
+    fn range(&mut self, lo: f64, hi: f64) -> f64;
+}
+
+impl Draw for Rng {
+    fn range(&mut self, lo: f64, hi: f64) -> f64 {
+        lo + (hi - lo) * self.f64()
     }
 }
 
@@ -165,7 +159,7 @@ pub fn check_samples(
     let mut checked = 0;
     for t in tris {
         for k in 0..40 {
-            let (mut b1, mut b2) = (rng.f(), rng.f());
+            let (mut b1, mut b2) = (rng.f64(), rng.f64());
             if b1 + b2 > 1.0 {
                 (b1, b2) = (1.0 - b1, 1.0 - b2);
             }
@@ -243,7 +237,7 @@ pub fn tetrahedron(rng: &mut Rng, size: f64, centre: [f64; 3]) -> Generator {
 
 /// 2 to 6 random rigid poses: rotations about random axes, translations within 1.
 pub fn random_rigid_poses(rng: &mut Rng) -> Vec<DMat4> {
-    (0..(2 + rng.below(5)))
+    (0..(2 + rng.u64(..5)))
         .map(|_| {
             let axis = DVec3::new(
                 rng.range(-1.0, 1.0),
