@@ -3,17 +3,11 @@
 
 use std::fs;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 
 use base64::Engine;
 
-fn sweptvol(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_sweptvol"))
-        .args(args)
-        .env("RUST_LOG", "warn")
-        .output()
-        .expect("run sweptvol")
-}
+mod common;
+use common::files::{run_args, sweptvol, write};
 
 /// A .gltf with the given named nodes, each carrying a one-triangle mesh, buffer as a data URI.
 fn write_gltf(dir: &Path, file: &str, node_names: &[&str], uri: Option<&str>) -> PathBuf {
@@ -48,31 +42,8 @@ fn write_gltf(dir: &Path, file: &str, node_names: &[&str], uri: Option<&str>) ->
     path
 }
 
-fn write(dir: &Path, file: &str, text: &str) -> PathBuf {
-    let p = dir.join(file);
-    fs::write(&p, text).unwrap();
-    p
-}
-
 const GOOD_CSV: &str =
     "# two poses\nframe,tx,ty,tz,qw,qx,qy,qz\n0,0,0,0,1,0,0,0\n1,0.1,0,0,1,0,0,0\n";
-
-fn run_args<'a>(g: &'a str, t: &'a str, out: &'a str) -> Vec<&'a str> {
-    vec![
-        "run",
-        "--generator",
-        g,
-        "--trajectory",
-        t,
-        "--out",
-        out,
-        "--resolution",
-        "32",
-        "--backend",
-        "cpu",
-        "--quiet",
-    ]
-}
 
 #[test]
 fn good_run_writes_all_outputs_and_never_overwrites_silently() {
@@ -80,12 +51,7 @@ fn good_run_writes_all_outputs_and_never_overwrites_silently() {
     let g = write_gltf(dir.path(), "part.gltf", &["part"], None);
     let t = write(dir.path(), "part.csv", GOOD_CSV);
     let out = dir.path().join("results");
-    let (gs, ts, os) = (
-        g.to_str().unwrap(),
-        t.to_str().unwrap(),
-        out.to_str().unwrap(),
-    );
-    let o = sweptvol(&run_args(gs, ts, os));
+    let o = sweptvol(&run_args(&g, &t, &out, &[]));
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let mut names: Vec<String> = fs::read_dir(&out)
         .unwrap()
@@ -116,7 +82,7 @@ fn good_run_writes_all_outputs_and_never_overwrites_silently() {
 
     // A second run refuses to overwrite and leaves the files as they were.
     let before = fs::read(out.join("part.depth-zmin.exr")).unwrap();
-    let o = sweptvol(&run_args(gs, ts, os));
+    let o = sweptvol(&run_args(&g, &t, &out, &[]));
     assert_eq!(
         o.status.code(),
         Some(2),
@@ -130,8 +96,7 @@ fn good_run_writes_all_outputs_and_never_overwrites_silently() {
     assert_eq!(before, fs::read(out.join("part.depth-zmin.exr")).unwrap());
 
     // --overwrite replaces them; --name changes the stem.
-    let mut args = run_args(gs, ts, os);
-    args.extend(["--overwrite", "--name", "other"]);
+    let args = run_args(&g, &t, &out, &["--overwrite", "--name", "other"]);
     let o = sweptvol(&args);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert!(out.join("other.report.json").exists());
@@ -140,11 +105,7 @@ fn good_run_writes_all_outputs_and_never_overwrites_silently() {
 /// Run with a bad input; expect exit code 2, every `needle` in stderr, and no output folder.
 fn expect_input_error(gltf: &Path, csv: &Path, needles: &[&str]) {
     let out = gltf.parent().unwrap().join("results");
-    let o = sweptvol(&run_args(
-        gltf.to_str().unwrap(),
-        csv.to_str().unwrap(),
-        out.to_str().unwrap(),
-    ));
+    let o = sweptvol(&run_args(gltf, csv, &out, &[]));
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(2), "exit code for {needles:?}: {err}");
     for n in needles {
@@ -258,13 +219,7 @@ fn bad_settings_are_refused_before_writing() {
         &["--delta", "0.0001"][..],
         &["--name", "../up"][..],
     ] {
-        let mut args = run_args(
-            g.to_str().unwrap(),
-            t.to_str().unwrap(),
-            out.to_str().unwrap(),
-        );
-        args.retain(|a| *a != "--resolution" && *a != "32");
-        args.extend(extra);
+        let args = run_args(&g, &t, &out, extra);
         let o = sweptvol(&args);
         assert!(!o.status.success(), "{extra:?} was accepted");
         assert!(!String::from_utf8_lossy(&o.stderr).is_empty());
@@ -280,13 +235,7 @@ fn also_writes_stl_ply_and_obj_of_the_same_mesh() {
     let g = write_gltf(dir.path(), "part.gltf", &["part"], None);
     let t = write(dir.path(), "part.csv", GOOD_CSV);
     let out = dir.path().join("results");
-    let (gs, ts, os) = (
-        g.to_str().unwrap(),
-        t.to_str().unwrap(),
-        out.to_str().unwrap(),
-    );
-    let mut args = run_args(gs, ts, os);
-    args.extend(["--also", "obj,stl,ply,stl"]);
+    let args = run_args(&g, &t, &out, &["--also", "obj,stl,ply,stl"]);
     let o = sweptvol(&args);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let report: serde_json::Value =
@@ -340,8 +289,7 @@ fn also_writes_stl_ply_and_obj_of_the_same_mesh() {
     assert_eq!(stl, fs::read(out.join("part.swept.stl")).unwrap());
     assert!(!out.join("part.swept.glb").exists());
 
-    let mut bad = run_args(gs, ts, os);
-    bad.extend(["--also", "step", "--name", "other"]);
+    let bad = run_args(&g, &t, &out, &["--also", "step", "--name", "other"]);
     let o = sweptvol(&bad);
     assert_eq!(o.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&o.stderr).contains("step"));
@@ -378,12 +326,12 @@ fn protocol_names_are_the_files_a_run_writes() {
     let g = write_gltf(dir.path(), "part.gltf", &["part"], None);
     let t = write(dir.path(), "part.csv", GOOD_CSV);
     let res = dir.path().join("results");
-    let mut args = run_args(
-        g.to_str().unwrap(),
-        t.to_str().unwrap(),
-        res.to_str().unwrap(),
+    let args = run_args(
+        &g,
+        &t,
+        &res,
+        &["--keep-start-mesh", "--also", "stl,ply,obj"],
     );
-    args.extend(["--keep-start-mesh", "--also", "stl,ply,obj"]);
     let o = sweptvol(&args);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let mut written: Vec<String> = fs::read_dir(&res)

@@ -10,9 +10,14 @@ use std::time::{Duration, Instant};
 use base64::Engine;
 use serde_json::{json, Value};
 
+mod common;
+use common::files::{run_args, verify_args, write};
+
 const BIN: &str = env!("CARGO_BIN_EXE_sweptvol");
 
-fn sweptvol(args: &[&str]) -> Output {
+/// The binary as a user starts it: no RUST_LOG, so the default log level and colour rules are
+/// what these tests see (common::files::sweptvol sets RUST_LOG=warn).
+fn sweptvol<S: AsRef<std::ffi::OsStr>>(args: &[S]) -> Output {
     Command::new(BIN)
         .args(args)
         .env_remove("RUST_LOG")
@@ -48,38 +53,7 @@ fn gltf_doc(node: Value) -> Value {
     })
 }
 
-fn write(dir: &Path, file: &str, bytes: impl AsRef<[u8]>) -> PathBuf {
-    let p = dir.join(file);
-    fs::write(&p, bytes).unwrap();
-    p
-}
-
 const CSV: &str = "frame,tx,ty,tz,qw,qx,qy,qz\n0,0,0,0,1,0,0,0\n1,0.1,0,0,1,0,0,0\n";
-
-fn run_args(g: &Path, t: &Path, out: &Path, extra: &[&str]) -> Vec<String> {
-    let mut v: Vec<String> = [
-        "run",
-        "--generator",
-        g.to_str().unwrap(),
-        "--trajectory",
-        t.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-        "--backend",
-        "cpu",
-        "--quiet",
-    ]
-    .map(String::from)
-    .to_vec();
-    if !extra
-        .iter()
-        .any(|a| *a == "--resolution" || *a == "--tolerance")
-    {
-        v.extend(["--resolution".into(), "32".into()]);
-    }
-    v.extend(extra.iter().map(|s| s.to_string()));
-    v
-}
 
 /// Every file under `dir` with its bytes.
 fn snapshot(dir: &Path) -> Vec<(PathBuf, Vec<u8>)> {
@@ -304,18 +278,8 @@ fn verify_stops_at_the_first_proven_failure_unless_asked_for_all() {
             base64::engine::general_purpose::STANDARD.encode(&bin))}],
     });
     let m = write(d, "far.gltf", mesh.to_string());
-    let base = [
-        "verify",
-        "--generator",
-        g.to_str().unwrap(),
-        "--trajectory",
-        t.to_str().unwrap(),
-        "--mesh",
-        m.to_str().unwrap(),
-        "--json",
-    ];
     let report = |extra: &[&str]| -> Value {
-        let o = sweptvol(&[&base[..], extra].concat());
+        let o = sweptvol(&verify_args(&g, &t, &m, &[&["--json"][..], extra].concat()));
         assert_eq!(o.status.code(), Some(3), "{}", stderr(&o));
         serde_json::from_slice(&o.stdout).unwrap()
     };
@@ -380,19 +344,7 @@ fn bad_option_values_exit_2_and_bad_files_say_what_they_are() {
     let args = run_args(&old, &t, &out, &[]);
     expect_refused(d, &args, &["old.gltf", "asset.version", "glTF 2.0"]);
     // verify --spacing absurdly fine: refused with the estimate.
-    let args: Vec<String> = [
-        "verify",
-        "--generator",
-        g.to_str().unwrap(),
-        "--trajectory",
-        t.to_str().unwrap(),
-        "--mesh",
-        g.to_str().unwrap(),
-        "--spacing",
-        "1e-9",
-    ]
-    .map(String::from)
-    .to_vec();
+    let args = verify_args(&g, &t, &g, &["--spacing", "1e-9"]);
     expect_refused(d, &args, &["--spacing", "samples", "use --spacing"]);
 }
 

@@ -5,62 +5,12 @@
 
 use std::fs;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 
 use glam::DVec3;
-use serde_json::{json, Value};
+use serde_json::Value;
 
-fn sweptvol(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_sweptvol"))
-        .args(args)
-        .env("RUST_LOG", "warn")
-        .output()
-        .expect("run sweptvol")
-}
-
-/// A .glb with one node and one indexed triangle primitive.
-fn write_glb(path: &Path, positions: &[[f32; 3]], tris: &[[u32; 3]]) {
-    let mut bin: Vec<u8> = positions
-        .iter()
-        .flatten()
-        .flat_map(|x| x.to_le_bytes())
-        .collect();
-    let index_at = bin.len();
-    bin.extend(tris.iter().flatten().flat_map(|i| i.to_le_bytes()));
-    let doc = json!({
-        "asset": {"version": "2.0"},
-        "scene": 0,
-        "scenes": [{"nodes": [0]}],
-        "nodes": [{"name": "part", "mesh": 0}],
-        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}],
-        "accessors": [
-            {"bufferView": 0, "componentType": 5126, "count": positions.len(), "type": "VEC3",
-             "min": [-1e9, -1e9, -1e9], "max": [1e9, 1e9, 1e9]},
-            {"bufferView": 1, "componentType": 5125, "count": 3 * tris.len(), "type": "SCALAR"},
-        ],
-        "bufferViews": [
-            {"buffer": 0, "byteOffset": 0, "byteLength": index_at},
-            {"buffer": 0, "byteOffset": index_at, "byteLength": bin.len() - index_at},
-        ],
-        "buffers": [{"byteLength": bin.len()}],
-    });
-    let mut js = serde_json::to_vec(&doc).unwrap();
-    while js.len() % 4 != 0 {
-        js.push(b' ');
-    }
-    let total = 12 + 8 + js.len() + 8 + bin.len();
-    let mut out = Vec::new();
-    out.extend_from_slice(b"glTF");
-    out.extend_from_slice(&2u32.to_le_bytes());
-    out.extend_from_slice(&(total as u32).to_le_bytes());
-    out.extend_from_slice(&(js.len() as u32).to_le_bytes());
-    out.extend_from_slice(b"JSON");
-    out.extend_from_slice(&js);
-    out.extend_from_slice(&(bin.len() as u32).to_le_bytes());
-    out.extend_from_slice(b"BIN\0");
-    out.extend_from_slice(&bin);
-    fs::write(path, out).unwrap();
-}
+mod common;
+use common::files::{glb, sweptvol};
 
 /// An outward box [lo, hi] as 8 vertices and 12 triangles.
 fn cuboid(lo: [f64; 3], hi: [f64; 3]) -> (Vec<[f32; 3]>, Vec<[u32; 3]>) {
@@ -149,7 +99,7 @@ fn scene() -> Scene {
     let path = dir.path().to_path_buf();
     let generator = path.join("part.glb");
     let (v, t) = cuboid([0.0, 0.0, 0.0], [0.6, 0.3, 0.2]);
-    write_glb(&generator, &v, &t);
+    fs::write(&generator, glb(&v, &t)).unwrap();
     let trajectory = path.join("part.csv");
     fs::write(
         &trajectory,
@@ -242,7 +192,7 @@ fn run_output_passes_and_broken_copies_fail_with_the_right_message() {
     let p64: Vec<DVec3> = pos.iter().map(|p| DVec3::from(p.map(f64::from))).collect();
     let broken = |name: &str, pos: &[[f32; 3]], tris: &[[u32; 3]], extra: &[&str]| {
         let m = sc.dir.join(name);
-        write_glb(&m, pos, tris);
+        fs::write(&m, glb(pos, tris)).unwrap();
         verify_json(&sc.generator, &sc.trajectory, &m, extra)
     };
 
@@ -342,7 +292,7 @@ fn run_output_passes_and_broken_copies_fail_with_the_right_message() {
 fn analytic(dir: &Path) -> (PathBuf, PathBuf) {
     let g = dir.join("box.glb");
     let (v, t) = cuboid([0.0, 0.0, 0.0], [0.5, 0.4, 0.3]);
-    write_glb(&g, &v, &t);
+    fs::write(&g, glb(&v, &t)).unwrap();
     let csv = dir.join("box.csv");
     fs::write(
         &csv,
@@ -364,7 +314,7 @@ fn analytic_box_hull_clearance_and_deviation() {
     let d = 0.02;
     let m = dir.path().join("hull+d.glb");
     let (v, t) = cuboid([-d, -d, -d], [1.5 + d, 0.4 + d, 0.3 + d]);
-    write_glb(&m, &v, &t);
+    fs::write(&m, glb(&v, &t)).unwrap();
     let (code, r) = verify_json(&g, &csv, &m, &["--spacing", &sp]);
     assert_eq!(code, 0, "{}", failures(&r));
     assert_eq!(r["containment"]["certified"], 36);
@@ -403,7 +353,7 @@ fn analytic_box_hull_clearance_and_deviation() {
     // nothing is outside either.
     let m = dir.path().join("hull.glb");
     let (v, t) = cuboid([0.0, 0.0, 0.0], [1.5, 0.4, 0.3]);
-    write_glb(&m, &v, &t);
+    fs::write(&m, glb(&v, &t)).unwrap();
     let (code, r) = verify_json(&g, &csv, &m, &["--spacing", "0.01"]);
     assert_eq!(code, 3);
     let f = failures(&r);
@@ -417,7 +367,7 @@ fn analytic_box_hull_clearance_and_deviation() {
     // The hull shortened by 0.01 at the far end: the last pose pokes out by 0.01.
     let m = dir.path().join("short.glb");
     let (v, t) = cuboid([-d, -d, -d], [1.49, 0.4 + d, 0.3 + d]);
-    write_glb(&m, &v, &t);
+    fs::write(&m, glb(&v, &t)).unwrap();
     let (code, r) = verify_json(&g, &csv, &m, &["--spacing", &sp]);
     assert_eq!(code, 3);
     let w = &r["containment"]["worst_outside"];
@@ -449,7 +399,7 @@ fn a_filled_pocket_exceeds_the_bound_only_where_hidden_from_every_axis() {
         t.extend(bt.iter().map(|tri| tri.map(|i| i + base)));
     }
     let g = dir.path().join("cup.glb");
-    write_glb(&g, &v, &t);
+    fs::write(&g, glb(&v, &t)).unwrap();
     let csv = dir.path().join("cup.csv");
     fs::write(&csv, "frame,tx,ty,tz,qw,qx,qy,qz\n0,0,0,0,1,0,0,0\n").unwrap();
     let out = dir.path().join("out");
@@ -514,7 +464,7 @@ fn bad_inputs_give_the_same_errors_as_run() {
     let (g, _) = analytic(dir.path());
     let m = dir.path().join("hull.glb");
     let (v, t) = cuboid([-0.1, -0.1, -0.1], [1.6, 0.5, 0.4]);
-    write_glb(&m, &v, &t);
+    fs::write(&m, glb(&v, &t)).unwrap();
     let bad = dir.path().join("bad.csv");
     fs::write(
         &bad,
@@ -594,7 +544,7 @@ fn pinched_meshes_fail_as_not_manifold() {
         v.extend(other.0);
         t.extend(other.1.iter().map(|tri| tri.map(|i| i + base)));
         let m = dir.path().join(format!("{name}.glb"));
-        write_glb(&m, &v, &t);
+        fs::write(&m, glb(&v, &t)).unwrap();
         let (code, r) = verify_json(&g, &csv, &m, &["--spacing", "0.01"]);
         assert_eq!(code, 3, "{name}: {}", failures(&r));
         assert!(
@@ -608,7 +558,7 @@ fn pinched_meshes_fail_as_not_manifold() {
         assert_eq!(r["health"]["closed"], true);
     }
     let m = dir.path().join("hull.glb");
-    write_glb(&m, &hull.0, &hull.1);
+    fs::write(&m, glb(&hull.0, &hull.1)).unwrap();
     let (code, r) = verify_json(&g, &csv, &m, &["--spacing", "0.01"]);
     assert_eq!(code, 0, "{}", failures(&r));
     assert_eq!(r["health"]["watertight_manifold"], true);

@@ -10,6 +10,9 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 use serde_json::Value;
 use sweptvol::io::{exr_depth, gltf_in};
 
+mod common;
+use common::files::glb;
+
 const BIN: &str = env!("CARGO_BIN_EXE_sweptvol");
 const OUTPUTS: [&str; 8] = [
     "swept.glb",
@@ -23,62 +26,6 @@ const OUTPUTS: [&str; 8] = [
 ];
 
 // ---- inputs ----
-
-/// A GLB holding one mesh: positions and u32 indices.
-fn glb(positions: &[[f32; 3]], triangles: &[[u32; 3]]) -> Vec<u8> {
-    let mut bin = Vec::new();
-    for p in positions {
-        for c in p {
-            bin.extend_from_slice(&c.to_le_bytes());
-        }
-    }
-    let pos_len = bin.len();
-    for t in triangles {
-        for i in t {
-            bin.extend_from_slice(&i.to_le_bytes());
-        }
-    }
-    let doc = serde_json::json!({
-        "asset": {"version": "2.0"},
-        "scene": 0,
-        "scenes": [{"nodes": [0]}],
-        "nodes": [{"name": "part", "mesh": 0}],
-        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}],
-        "accessors": [
-            {"bufferView": 0, "componentType": 5126, "count": positions.len(), "type": "VEC3",
-             "min": [0.0, 0.0, 0.0], "max": [1.0, 1.0, 1.0]},
-            {"bufferView": 1, "componentType": 5125, "count": 3 * triangles.len(), "type": "SCALAR"}
-        ],
-        "bufferViews": [
-            {"buffer": 0, "byteOffset": 0, "byteLength": pos_len},
-            {"buffer": 0, "byteOffset": pos_len, "byteLength": bin.len() - pos_len}
-        ],
-        "buffers": [{"byteLength": bin.len()}],
-    });
-    let mut json = serde_json::to_vec(&doc).unwrap();
-    while json.len() % 4 != 0 {
-        json.push(b' ');
-    }
-    while bin.len() % 4 != 0 {
-        bin.push(0);
-    }
-    let total = 12 + 8 + json.len() + 8 + bin.len();
-    let mut out = Vec::with_capacity(total);
-    for word in [
-        0x4654_6C67u32,
-        2,
-        total as u32,
-        json.len() as u32,
-        0x4E4F_534A,
-    ] {
-        out.extend_from_slice(&word.to_le_bytes());
-    }
-    out.extend_from_slice(&json);
-    out.extend_from_slice(&(bin.len() as u32).to_le_bytes());
-    out.extend_from_slice(&0x004E_4942u32.to_le_bytes());
-    out.extend_from_slice(&bin);
-    out
-}
 
 /// A tetrahedron (a cheap shape for the simplifier: at n = 16 a job takes about 0.5 s).
 fn tet_glb() -> Vec<u8> {
@@ -708,21 +655,32 @@ fn escaping_uris_symlinks_and_oversized_inputs_are_refused() {
     assert_eq!(input_files(&dir), before);
 }
 
-#[test]
-fn sigterm_leaves_the_running_job_queued_and_the_next_start_runs_it() {
-    let (_tmp, dir) = watched();
-    let (g, c) = long_job_files(3);
+/// A long job "long" (`long_job_files(repeat)`) and a daemon started on it, once the job is
+/// sweeping; with the input files as they were before the daemon started.
+fn daemon_on_a_sweeping_job(
+    dir: &Path,
+    repeat: usize,
+) -> (PathBuf, Vec<(PathBuf, Vec<u8>)>, Daemon) {
+    let (g, c) = long_job_files(repeat);
     let job = submit(
-        &dir,
+        dir,
         "long",
         &[("generator.glb", &g), ("trajectory.csv", c.as_bytes())],
     );
-    let before = input_files(&dir);
+    let before = input_files(dir);
     let status_path = job.join("status.json");
-    let mut d = Daemon::start(&dir, "daemon.log", &["--resolution", "32"]);
+    let d = Daemon::start(dir, "daemon.log", &["--resolution", "32"]);
     wait_until(Duration::from_secs(30), "the sweep", || {
         status(&status_path).is_some_and(|s| s["stage"] == "sweep")
     });
+    (job, before, d)
+}
+
+#[test]
+fn sigterm_leaves_the_running_job_queued_and_the_next_start_runs_it() {
+    let (_tmp, dir) = watched();
+    let (job, before, mut d) = daemon_on_a_sweeping_job(&dir, 3);
+    let status_path = job.join("status.json");
     d.signal(libc::SIGTERM);
     let code = d.wait(Duration::from_secs(30));
     assert!(code.success(), "{}", d.log());
@@ -743,18 +701,8 @@ fn sigterm_leaves_the_running_job_queued_and_the_next_start_runs_it() {
 #[test]
 fn cancel_file_stops_the_job_and_marks_it_cancelled() {
     let (_tmp, dir) = watched();
-    let (g, c) = long_job_files(4);
-    let job = submit(
-        &dir,
-        "long",
-        &[("generator.glb", &g), ("trajectory.csv", c.as_bytes())],
-    );
-    let before = input_files(&dir);
+    let (job, before, mut d) = daemon_on_a_sweeping_job(&dir, 4);
     let status_path = job.join("status.json");
-    let mut d = Daemon::start(&dir, "daemon.log", &["--resolution", "32"]);
-    wait_until(Duration::from_secs(30), "the sweep", || {
-        status(&status_path).is_some_and(|s| s["stage"] == "sweep")
-    });
     fs::write(job.join("cancel"), b"").unwrap();
     let t0 = Instant::now();
     wait_until(Duration::from_secs(20), "cancelled", || {

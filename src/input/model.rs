@@ -1,7 +1,11 @@
 //! The inputs after parsing: parts of the generator and the poses that move them.
 //! Plain data, no I/O. Produced by `io::gltf_in` and `io::trajectory`, consumed by `input::posed`.
 
+use std::path::Path;
+
 use glam::{DMat4, Vec3};
+
+use crate::error::InputError;
 
 /// One glTF node's own mesh: all its TRIANGLES primitives merged.
 #[derive(Debug, Clone)]
@@ -30,6 +34,35 @@ pub struct Generator {
 impl Generator {
     pub fn triangle_count(&self) -> usize {
         self.parts.iter().map(|p| p.triangles.len()).sum()
+    }
+
+    /// The one part whose node is called `name`, for the trajectory row at `line` of
+    /// `csv_path`; no such node, or more than one, is an error on that row's `node` column.
+    pub fn part_named(&self, name: &str, csv_path: &Path, line: u64) -> Result<usize, InputError> {
+        let mut hits =
+            (0..self.parts.len()).filter(|&i| self.parts[i].node_name.as_deref() == Some(name));
+        let (first, count) = (hits.next(), 1 + hits.count());
+        let error = match first {
+            Some(i) if count == 1 => return Ok(i),
+            Some(_) => InputError::new(
+                csv_path,
+                format!("node name {name:?} is ambiguous: {count} mesh nodes carry it"),
+                "give the glTF nodes unique names",
+            ),
+            None => {
+                let known: Vec<&str> = self
+                    .parts
+                    .iter()
+                    .filter_map(|p| p.node_name.as_deref())
+                    .collect();
+                InputError::new(
+                    csv_path,
+                    format!("no node named {name:?} carries a mesh in the generator"),
+                    format!("use one of the mesh nodes: {}", known.join(", ")),
+                )
+            }
+        };
+        Err(error.at_line(line).in_column("node"))
     }
 }
 

@@ -94,42 +94,8 @@ fn assign_poses(
     let mut by_part: Vec<Vec<LinedPose>> = vec![Vec::new(); generator.parts.len()];
     for pose in &trajectory.poses {
         let name = pose.node.as_deref().unwrap_or_default();
-        let hits: Vec<usize> = generator
-            .parts
-            .iter()
-            .enumerate()
-            .filter(|(_, p)| p.node_name.as_deref() == Some(name))
-            .map(|(i, _)| i)
-            .collect();
-        match hits.as_slice() {
-            [i] => by_part[*i].push((pose.matrix * generator.parts[*i].world, Some(pose.line))),
-            [] => {
-                let known: Vec<&str> = generator
-                    .parts
-                    .iter()
-                    .filter_map(|p| p.node_name.as_deref())
-                    .collect();
-                return Err(InputError::new(
-                    csv_path,
-                    format!("no node named {name:?} carries a mesh in the generator"),
-                    format!("use one of the mesh nodes: {}", known.join(", ")),
-                )
-                .at_line(pose.line)
-                .in_column("node"));
-            }
-            _ => {
-                return Err(InputError::new(
-                    csv_path,
-                    format!(
-                        "node name {name:?} is ambiguous: {} mesh nodes carry it",
-                        hits.len()
-                    ),
-                    "give the glTF nodes unique names",
-                )
-                .at_line(pose.line)
-                .in_column("node"))
-            }
-        }
+        let i = generator.part_named(name, csv_path, pose.line)?;
+        by_part[i].push((pose.matrix * generator.parts[i].world, Some(pose.line)));
     }
     for (i, poses) in by_part.into_iter().enumerate() {
         if poses.is_empty() {

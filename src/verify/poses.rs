@@ -84,36 +84,7 @@ pub fn assign(
     for (row, p) in trajectory.poses.iter().enumerate() {
         let targets: Vec<usize> = if trajectory.has_node_column {
             let name = p.node.as_deref().unwrap_or_default();
-            let hits: Vec<usize> = (0..generator.parts.len())
-                .filter(|&i| generator.parts[i].node_name.as_deref() == Some(name))
-                .collect();
-            if hits.is_empty() {
-                let known: Vec<&str> = generator
-                    .parts
-                    .iter()
-                    .filter_map(|p| p.node_name.as_deref())
-                    .collect();
-                return Err(InputError::new(
-                    csv_path,
-                    format!("no node named {name:?} carries a mesh in the generator"),
-                    format!("use one of the mesh nodes: {}", known.join(", ")),
-                )
-                .at_line(p.line)
-                .in_column("node"));
-            }
-            if hits.len() > 1 {
-                return Err(InputError::new(
-                    csv_path,
-                    format!(
-                        "node name {name:?} is ambiguous: {} mesh nodes carry it",
-                        hits.len()
-                    ),
-                    "give the glTF nodes unique names",
-                )
-                .at_line(p.line)
-                .in_column("node"));
-            }
-            hits
+            vec![generator.part_named(name, csv_path, p.line)?]
         } else {
             (0..generator.parts.len()).collect()
         };

@@ -1,6 +1,8 @@
 //! Independent oracles for the tests: exact f64 geometry that shares no code with the sweep.
 #![allow(dead_code)]
 
+pub mod files;
+
 use std::path::Path;
 
 use glam::{DMat4, DVec3, Vec3};

@@ -1,0 +1,118 @@
+//! The binary and its input files, for the tests that run `sweptvol` itself.
+
+use std::ffi::OsStr;
+use std::fs;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+/// Run the binary under test with `RUST_LOG=warn`, so stderr holds warnings and errors only.
+pub fn sweptvol<S: AsRef<OsStr>>(args: &[S]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_sweptvol"))
+        .args(args)
+        .env("RUST_LOG", "warn")
+        .output()
+        .expect("run sweptvol")
+}
+
+/// Write `bytes` to `dir/file` and return the path.
+pub fn write(dir: &Path, file: &str, bytes: impl AsRef<[u8]>) -> PathBuf {
+    let p = dir.join(file);
+    fs::write(&p, bytes).unwrap();
+    p
+}
+
+/// `sweptvol run` of `g` along `t` into `out` on the CPU backend, quietly, then `extra`; at
+/// resolution 32 unless `extra` sets the accuracy.
+pub fn run_args(g: &Path, t: &Path, out: &Path, extra: &[&str]) -> Vec<String> {
+    let mut v: Vec<String> = [
+        "run",
+        "--generator",
+        g.to_str().unwrap(),
+        "--trajectory",
+        t.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--backend",
+        "cpu",
+        "--quiet",
+    ]
+    .map(String::from)
+    .to_vec();
+    if !extra
+        .iter()
+        .any(|a| *a == "--resolution" || *a == "--tolerance")
+    {
+        v.extend(["--resolution".into(), "32".into()]);
+    }
+    v.extend(extra.iter().map(|s| s.to_string()));
+    v
+}
+
+/// `sweptvol verify` of mesh `m` against `g` along `t`, then `extra`.
+pub fn verify_args(g: &Path, t: &Path, m: &Path, extra: &[&str]) -> Vec<String> {
+    let mut v: Vec<String> = [
+        "verify",
+        "--generator",
+        g.to_str().unwrap(),
+        "--trajectory",
+        t.to_str().unwrap(),
+        "--mesh",
+        m.to_str().unwrap(),
+    ]
+    .map(String::from)
+    .to_vec();
+    v.extend(extra.iter().map(|s| s.to_string()));
+    v
+}
+
+/// A .glb with one node "part" holding one indexed triangle primitive (u32 indices); the
+/// accessor's min and max are the positions' box.
+pub fn glb(positions: &[[f32; 3]], triangles: &[[u32; 3]]) -> Vec<u8> {
+    let mut bin: Vec<u8> = positions
+        .iter()
+        .flatten()
+        .flat_map(|x| x.to_le_bytes())
+        .collect();
+    let index_at = bin.len();
+    bin.extend(triangles.iter().flatten().flat_map(|i| i.to_le_bytes()));
+    let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+    for p in positions {
+        for c in 0..3 {
+            lo[c] = lo[c].min(p[c]);
+            hi[c] = hi[c].max(p[c]);
+        }
+    }
+    let doc = serde_json::json!({
+        "asset": {"version": "2.0"},
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": [{"name": "part", "mesh": 0}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}],
+        "accessors": [
+            {"bufferView": 0, "componentType": 5126, "count": positions.len(), "type": "VEC3",
+             "min": lo, "max": hi},
+            {"bufferView": 1, "componentType": 5125, "count": 3 * triangles.len(), "type": "SCALAR"},
+        ],
+        "bufferViews": [
+            {"buffer": 0, "byteOffset": 0, "byteLength": index_at},
+            {"buffer": 0, "byteOffset": index_at, "byteLength": bin.len() - index_at},
+        ],
+        "buffers": [{"byteLength": bin.len()}],
+    });
+    let mut json = serde_json::to_vec(&doc).unwrap();
+    while json.len() % 4 != 0 {
+        json.push(b' ');
+    }
+    let total = 12 + 8 + json.len() + 8 + bin.len();
+    let mut out = Vec::with_capacity(total);
+    out.extend_from_slice(b"glTF");
+    out.extend_from_slice(&2u32.to_le_bytes());
+    out.extend_from_slice(&(total as u32).to_le_bytes());
+    out.extend_from_slice(&(json.len() as u32).to_le_bytes());
+    out.extend_from_slice(b"JSON");
+    out.extend_from_slice(&json);
+    out.extend_from_slice(&(bin.len() as u32).to_le_bytes());
+    out.extend_from_slice(b"BIN\0");
+    out.extend_from_slice(&bin);
+    out
+}
