@@ -12,8 +12,9 @@
 //! - [`mesh`]: voxels classified by condition ⋆ ([`mesh::classify`]), pinches joined so the
 //!   boundary is a 2-manifold ([`mesh::manifold`]), the voxel boundary extracted
 //!   ([`mesh::extract`]).
-//! - [`simplify`]: edge collapses inside the tolerance volume (paper section 5), with its own
-//!   band, sweep and self-intersection tests.
+//! - [`simplify`]: edge collapses inside the tolerance volume (paper section 5): quadric costs,
+//!   a queue, disjoint batches, per-region checks (band, sweep, topology), then the
+//!   self-intersection check and the commit on the shared state.
 //! - [`pipeline`]: one run, files in to files out, with its named outputs and its report;
 //!   [`watch`] and `main.rs` are its shells.
 //! - [`verify`]: an independent certificate for any swept-volume mesh.

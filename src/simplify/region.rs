@@ -5,7 +5,9 @@
 
 use glam::DVec3;
 
-use super::{cheapest, Plan, Quadric, Reject, SimplifyOptions};
+use super::quadric::{cheapest, Quadric};
+use super::state::{Plan, Reject};
+use super::SimplifyOptions;
 use crate::simplify::band::Proximity;
 
 /// The triangles around edge (a, b) and their vertices, copied from the mesh when the edge joins

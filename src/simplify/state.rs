@@ -1,0 +1,436 @@
+//! The mesh as the simplifier holds it, with what each collapse reads and changes: stars,
+//! versions, quadrics, the triangle hash; the checks that read the committed mesh and the commit.
+
+use std::collections::HashMap;
+
+use glam::DVec3;
+
+use super::band::Proximity;
+use super::intersect::{bounds, bounds_meet, boxes_meet, conflict, TriangleHash};
+use super::quadric::{cheapest, Quadric};
+use super::queue::{bucket, Candidate, Queue};
+use super::region::Region;
+use super::{regrow, SimplifyStats, HASH_CELL};
+use crate::mesh::classify::Classifier;
+use crate::mesh::Mesh;
+
+/// What a worker thread keeps across checks.
+pub(super) struct Scratch<'c> {
+    /// Distance memo, sized for the voxels near the surface: about two per start triangle.
+    pub(super) prox: Proximity<'c>,
+    pub(super) seen: IdSet,
+}
+
+impl<'c> Scratch<'c> {
+    pub(super) fn new(cls: &'c Classifier, triangles: usize) -> Self {
+        Scratch {
+            prox: Proximity::with_capacity(cls, 2 * triangles),
+            seen: IdSet::new(triangles),
+        }
+    }
+}
+
+/// A set of triangle ids, one bit each (2 MB for 16 M triangles), empty between uses.
+pub(super) struct IdSet(Vec<u64>);
+
+impl IdSet {
+    pub(super) fn new(ids: usize) -> Self {
+        IdSet(vec![0; ids.div_ceil(64)])
+    }
+
+    /// Drops every id from `ids` that an earlier one repeats, keeping the order.
+    pub(super) fn keep_first(&mut self, ids: &mut Vec<u32>) {
+        let bits = &mut self.0;
+        ids.retain(|&u| {
+            let (word, bit) = (u as usize / 64, 1u64 << (u % 64));
+            let first = bits[word] & bit == 0;
+            bits[word] |= bit;
+            first
+        });
+        for &u in ids.iter() {
+            bits[u as usize / 64] &= !(1u64 << (u % 64));
+        }
+    }
+}
+
+/// A collapse that passed [`Region::check`]: b merges into a at v.
+pub(super) struct Plan {
+    pub(super) a: usize,
+    pub(super) b: usize,
+    pub(super) v: DVec3,
+    /// The two triangles on the edge (they disappear).
+    pub(super) shared: Vec<u32>,
+    /// The surviving triangles around the edge that move, with their new positions (those that
+    /// stay keep their hash cells and cannot meet anything new).
+    pub(super) changed: Vec<(u32, [DVec3; 3])>,
+    /// The same with their vertex ids after the collapse.
+    pub(super) new: Vec<([u32; 3], [DVec3; 3])>,
+    /// a's neighbours after the collapse, with the cost of collapsing the edge to each (read
+    /// before the batch: no other collapse of the batch moves them or a).
+    pub(super) fresh: Vec<(u32, f64)>,
+    /// The triangles around the edge before the collapse, sorted.
+    pub(super) around: Vec<u32>,
+    /// The surviving triangles around the edge that stay where they are (ids after the
+    /// collapse, places).
+    pub(super) unchanged: Vec<([u32; 3], [DVec3; 3])>,
+    /// The collapse keeps the surface's point set ([`Region::keeps_surface`]).
+    pub(super) in_plane: bool,
+}
+
+/// The triangles a committed plan moved, as after its collapse (ids, places), and their box.
+pub(super) struct Moved {
+    pub(super) fan: (DVec3, DVec3),
+    pub(super) tris: Vec<([u32; 3], [DVec3; 3])>,
+}
+
+#[derive(Clone, Copy, Debug)]
+pub(super) enum Reject {
+    Topology,
+    Flip,
+    Band,
+    Sweep,
+    Intersection,
+}
+
+pub(super) struct State {
+    /// Every live triangle under the cells its current box meets (plus stale entries).
+    pub(super) hash: TriangleHash,
+    pub(super) pos: Vec<DVec3>,
+    pub(super) tris: Vec<[u32; 3]>,
+    pub(super) tri_alive: Vec<bool>,
+    /// Live triangles around each vertex.
+    pub(super) star: Vec<Vec<u32>>,
+    pub(super) vert_alive: Vec<bool>,
+    pub(super) version: Vec<u32>,
+    pub(super) quadric: Vec<Quadric>,
+    pub(super) live_tris: usize,
+    pub(super) stats: SimplifyStats,
+}
+
+/// Whether triangle `t` (ids, places) conflicts with one of `others` ([`conflict`], boxes first).
+pub(super) fn meets_any<'a>(
+    t: &([u32; 3], [DVec3; 3]),
+    mut others: impl Iterator<Item = &'a ([u32; 3], [DVec3; 3])>,
+) -> bool {
+    let (ti, q) = t;
+    others.any(|(ui, up)| boxes_meet(q, up) && conflict(*ti, *q, *ui, *up))
+}
+
+/// Parks rejected edge (a, b) under both endpoints, once.
+pub(super) fn park(parked: &mut HashMap<u32, Vec<u32>>, a: u32, b: u32) {
+    for (x, y) in [(a, b), (b, a)] {
+        let list = parked.entry(x).or_default();
+        if !list.contains(&y) {
+            list.push(y);
+        }
+    }
+}
+
+impl State {
+    /// Stars, quadrics and the triangle hash of `mesh`.
+    pub(super) fn new(mesh: Mesh) -> State {
+        let n = mesh.positions.len();
+        let t_count = mesh.triangles.len();
+        let mut s = State {
+            hash: TriangleHash::new(HASH_CELL),
+            pos: mesh.positions,
+            tris: mesh.triangles,
+            tri_alive: vec![true; t_count],
+            star: vec![Vec::new(); n],
+            vert_alive: vec![true; n],
+            version: vec![0; n],
+            quadric: vec![Quadric::default(); n],
+            live_tris: t_count,
+            stats: SimplifyStats::default(),
+        };
+        for t in 0..t_count {
+            let tri = s.tris[t];
+            let (tris, pos) = (&s.tris, &s.pos);
+            let p = tri.map(|i| pos[i as usize]);
+            let start = |u: u32| Some(tris[u as usize].map(|x| pos[x as usize]));
+            s.hash.insert(t as u32, &p, None, start);
+            let q = Quadric::plane(p);
+            for &v in &tri {
+                s.star[v as usize].push(t as u32);
+                s.quadric[v as usize] = s.quadric[v as usize].add(&q);
+            }
+        }
+        s
+    }
+
+    /// Pushes the parked edges at `v` back onto the heap (those still edges, except the one to
+    /// `fresh`, whose candidate is already new) and unparks them under both endpoints.
+    pub(super) fn retry_parked(
+        &self,
+        parked: &mut HashMap<u32, Vec<u32>>,
+        heap: &mut Queue,
+        v: u32,
+        fresh: u32,
+    ) {
+        let Some(others) = parked.remove(&v) else {
+            return;
+        };
+        let still = self.neighbours(v as usize);
+        for x in others {
+            if let Some(list) = parked.get_mut(&x) {
+                list.retain(|&y| y != v);
+            }
+            if x != fresh && still.binary_search(&(x as usize)).is_ok() {
+                self.push(heap, self.candidate(v, x));
+            }
+        }
+    }
+
+    /// Whether `c` still describes its edge (both ends alive, neither moved since).
+    pub(super) fn is_current(&self, c: &Candidate) -> bool {
+        let (a, b) = (c.a as usize, c.b as usize);
+        self.vert_alive[a] && self.vert_alive[b] && self.version[a] + self.version[b] == c.ver
+    }
+
+    /// Pushes `c`. A full FIFO first drops its stale entries rather than growing (they are most
+    /// of it: every collapse makes the entries at its kept vertex stale), and grows only when
+    /// that frees less than a quarter; each bucket of 64 entries or more likewise. (A costly
+    /// bucket is emptied by pops only when it is the cheapest, so its stale entries wait for it
+    /// to fill: at n = 1500 the buckets hold about 0.35 GB more than one heap pruned as a whole
+    /// did. Pruning them all together against a capacity budget thrashed; against an entry
+    /// budget it saved 11 MB of 1.02 GB at n = 700.)
+    pub(super) fn push(&self, queue: &mut Queue, c: Candidate) {
+        if c.cost == 0.0 {
+            let zero = &mut queue.zero;
+            if zero.len() == zero.capacity() {
+                zero.retain(|c| self.is_current(c));
+                zero.reserve(regrow(zero.len(), zero.capacity()));
+            }
+            zero.push_back(c);
+            return;
+        }
+        let k = bucket(c.cost);
+        queue.low = queue.low.min(k);
+        let heap = &mut queue.buckets[k];
+        if heap.len() == heap.capacity() && heap.len() >= 64 {
+            heap.retain(|c| self.is_current(c));
+            heap.reserve(regrow(heap.len(), heap.capacity()));
+        }
+        heap.push(c);
+    }
+
+    pub(super) fn candidate(&self, a: u32, b: u32) -> Candidate {
+        Candidate {
+            cost: self.best_target(a, b).0 as f32,
+            a,
+            b,
+            ver: self.version[a as usize] + self.version[b as usize],
+        }
+    }
+
+    /// The quadric error and position of the cheapest target for collapsing edge (a, b).
+    pub(super) fn best_target(&self, a: u32, b: u32) -> (f64, DVec3) {
+        let (a, b) = (a as usize, b as usize);
+        cheapest(&self.quadric[a], self.pos[a], &self.quadric[b], self.pos[b])
+    }
+
+    /// Appends the vertices of v's triangles to `out` (v and repeats included).
+    pub(super) fn star_vertices(&self, v: usize, out: &mut Vec<usize>) {
+        out.extend(
+            self.star[v]
+                .iter()
+                .flat_map(|&t| self.tris[t as usize])
+                .map(|x| x as usize),
+        );
+    }
+
+    pub(super) fn neighbours(&self, v: usize) -> Vec<usize> {
+        let mut out: Vec<usize> = self.star[v]
+            .iter()
+            .flat_map(|&t| self.tris[t as usize])
+            .map(|x| x as usize)
+            .filter(|&x| x != v)
+            .collect();
+        out.sort_unstable();
+        out.dedup();
+        out
+    }
+
+    /// The triangles around edge (a, b) and their vertices, copied.
+    pub(super) fn region(&self, a: u32, b: u32) -> Region {
+        let mut tris: Vec<(u32, [u32; 3])> = self.star[a as usize]
+            .iter()
+            .chain(&self.star[b as usize])
+            .map(|&t| (t, self.tris[t as usize]))
+            .collect();
+        tris.sort_unstable_by_key(|x| x.0);
+        tris.dedup_by_key(|x| x.0);
+        let mut ids: Vec<u32> = tris.iter().flat_map(|x| x.1).collect();
+        ids.sort_unstable();
+        ids.dedup();
+        let verts = ids
+            .into_iter()
+            .map(|x| (x, self.pos[x as usize], self.quadric[x as usize]))
+            .collect();
+        Region { a, b, tris, verts }
+    }
+
+    /// The self-intersection check of a plan that moves the surface ([`Plan::in_plane`] false):
+    /// each new triangle against the other live triangles near it, the other new ones (ids as
+    /// after the collapse: b becomes a) and the unchanged ones. Reads the mesh as committed:
+    /// the plans committed before this one in its batch are checked at its commit.
+    pub(super) fn crosses_nothing(&self, seen: &mut IdSet, plan: &Plan) -> Result<(), Reject> {
+        let (new, unchanged, around) = (&plan.new, &plan.unchanged, &plan.around);
+        let fan: Vec<DVec3> = new.iter().flat_map(|(_, q)| *q).collect();
+        let fan_box = bounds(&fan);
+        let mut near = Vec::new();
+        self.hash.near(&fan, &mut near);
+        // Distinct ids first: the hash repeats a triangle once per cell it is filed under,
+        // a large one hundreds of times.
+        seen.keep_first(&mut near);
+        let others: Vec<([u32; 3], [DVec3; 3])> = near
+            .iter()
+            .filter(|u| self.tri_alive[**u as usize] && around.binary_search(u).is_err())
+            .map(|&u| {
+                let ui = self.tris[u as usize];
+                (ui, ui.map(|x| self.pos[x as usize]))
+            })
+            .filter(|(_, up)| bounds_meet(fan_box, bounds(up)))
+            .collect();
+        for (k, t) in new.iter().enumerate() {
+            if meets_any(t, others.iter().chain(&new[k + 1..]).chain(unchanged)) {
+                return Err(Reject::Intersection);
+            }
+        }
+        Ok(())
+    }
+
+    /// Commits a checked batch in its order (a rejected edge is parked), then returns the
+    /// `deferred` candidates to the queue. True once the mesh has at most `target` triangles.
+    pub(super) fn commit_batch(
+        &mut self,
+        heap: &mut Queue,
+        parked: &mut HashMap<u32, Vec<u32>>,
+        ready: Vec<((u32, u32), Result<Plan, Reject>)>,
+        deferred: Vec<Candidate>,
+        target: usize,
+    ) -> bool {
+        let mut batch_moved = Vec::new();
+        for ((a, b), outcome) in ready {
+            if self.live_tris <= target {
+                return true;
+            }
+            let mut plan = match outcome {
+                Ok(plan) => plan,
+                Err(why) => {
+                    self.stats.count(why);
+                    park(parked, a, b);
+                    continue;
+                }
+            };
+            let fresh = std::mem::take(&mut plan.fresh);
+            if !self.commit(plan, &mut batch_moved) {
+                park(parked, a, b);
+                continue;
+            }
+            // Edges at a have a new cost: fresh candidates (their old entries are stale by a's
+            // version). Edges at a's neighbours keep their cost and their heap entries, but
+            // their stars now hold moved triangles, so those rejected earlier may pass now:
+            // they come back.
+            parked.remove(&a);
+            for (nb, cost) in fresh {
+                let c = Candidate {
+                    cost: cost as f32,
+                    a,
+                    b: nb,
+                    ver: self.version[a as usize] + self.version[nb as usize],
+                };
+                self.push(heap, c);
+                self.retry_parked(parked, heap, nb, a);
+            }
+        }
+        for c in deferred {
+            self.push(heap, c);
+        }
+        self.live_tris <= target
+    }
+
+    /// Apply a checked plan unless its new triangles meet a triangle moved earlier in this batch
+    /// (`batch_moved`, the new triangles of each earlier plan, ids and positions as now, with
+    /// their bounding box; the plan's own are added to it).
+    pub(super) fn commit(&mut self, plan: Plan, batch_moved: &mut Vec<Moved>) -> bool {
+        let Plan {
+            a,
+            b,
+            v,
+            shared,
+            changed,
+            new,
+            in_plane,
+            ..
+        } = plan;
+        // The same test against the triangles that earlier collapses of this batch moved, which
+        // `check` saw at their old places. A collapse in a plane covers the same points before
+        // and after, so it neither needs the test nor adds to it.
+        if in_plane {
+            self.stats.collapses_in_plane += 1;
+        } else {
+            let places: Vec<DVec3> = new.iter().flat_map(|(_, q)| *q).collect();
+            let fan = bounds(&places);
+            for earlier in batch_moved.iter().filter(|m| bounds_meet(m.fan, fan)) {
+                if new.iter().any(|t| meets_any(t, earlier.tris.iter())) {
+                    self.stats.rejected_intersection += 1;
+                    return false;
+                }
+            }
+            batch_moved.push(Moved { fan, tris: new });
+        }
+
+        // Apply: b merges into a at v.
+        let was: Vec<[DVec3; 3]> = changed
+            .iter()
+            .map(|(t, _)| self.tris[*t as usize].map(|x| self.pos[x as usize]))
+            .collect();
+        for &t in &shared {
+            self.tri_alive[t as usize] = false;
+            self.live_tris -= 1;
+            for x in self.tris[t as usize] {
+                self.star[x as usize].retain(|&u| u != t);
+            }
+        }
+        let moved: Vec<u32> = self.star[b].clone();
+        for t in moved {
+            for x in self.tris[t as usize].iter_mut() {
+                if *x as usize == b {
+                    *x = a as u32;
+                }
+            }
+            self.star[a].push(t);
+        }
+        self.star[b] = Vec::new(); // b is gone: free its star
+        self.vert_alive[b] = false;
+        self.pos[a] = v;
+        let (tris, pos, alive) = (&self.tris, &self.pos, &self.tri_alive);
+        let current = |u: u32| alive[u as usize].then(|| tris[u as usize].map(|x| pos[x as usize]));
+        for ((t, q), w) in changed.iter().zip(&was) {
+            self.hash.insert(*t, q, Some(w), current);
+        }
+        self.quadric[a] = self.quadric[a].add(&self.quadric[b]);
+        self.version[a] += 1;
+        self.stats.collapses += 1;
+        true
+    }
+
+    pub(super) fn compact(&self) -> Mesh {
+        let mut map = vec![u32::MAX; self.pos.len()];
+        let mut out = Mesh::default();
+        for (t, tri) in self.tris.iter().enumerate() {
+            if !self.tri_alive[t] {
+                continue;
+            }
+            out.triangles.push(tri.map(|x| {
+                if map[x as usize] == u32::MAX {
+                    map[x as usize] = out.positions.len() as u32;
+                    out.positions.push(self.pos[x as usize]);
+                }
+                map[x as usize]
+            }));
+        }
+        out
+    }
+}
