@@ -10,7 +10,7 @@ use glam::DVec3;
 use serde_json::Value;
 
 mod common;
-use common::files::{glb, sweptvol};
+use common::files::{glb, run_args, sweptvol, write};
 
 /// An outward box [lo, hi] as 8 vertices and 12 triangles.
 fn cuboid(lo: [f64; 3], hi: [f64; 3]) -> (Vec<[f32; 3]>, Vec<[u32; 3]>) {
@@ -97,30 +97,19 @@ struct Scene {
 fn scene() -> Scene {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().to_path_buf();
-    let generator = path.join("part.glb");
-    let (v, t) = cuboid([0.0, 0.0, 0.0], [0.6, 0.3, 0.2]);
-    fs::write(&generator, glb(&v, &t)).unwrap();
-    let trajectory = path.join("part.csv");
-    fs::write(
-        &trajectory,
+    let (generator, trajectory) = box_along(
+        &path,
+        "part",
+        [0.6, 0.3, 0.2],
         "frame,tx,ty,tz,qw,qx,qy,qz\n0,0,0,0,1,0,0,0\n1,0.15,0.02,0,0.9990482,0,0,0.0436194\n2,0.3,0.05,0.01,0.9961947,0,0.0871557,0\n",
-    )
-    .unwrap();
+    );
     let out = path.join("out");
-    let o = sweptvol(&[
-        "run",
-        "--generator",
-        s(&generator),
-        "--trajectory",
-        s(&trajectory),
-        "--out",
-        s(&out),
-        "--resolution",
-        "40",
-        "--backend",
-        "cpu",
-        "--quiet",
-    ]);
+    let o = sweptvol(&run_args(
+        &generator,
+        &trajectory,
+        &out,
+        &["--resolution", "40"],
+    ));
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let report = serde_json::from_slice(&fs::read(out.join("part.report.json")).unwrap()).unwrap();
     Scene {
@@ -290,16 +279,21 @@ fn run_output_passes_and_broken_copies_fail_with_the_right_message() {
 /// A box [0, 0.5]×[0, 0.4]×[0, 0.3] pushed along x to 0.5 and 1: its swept volume is the box
 /// [0, 1.5]×[0, 0.4]×[0, 0.3].
 fn analytic(dir: &Path) -> (PathBuf, PathBuf) {
-    let g = dir.join("box.glb");
-    let (v, t) = cuboid([0.0, 0.0, 0.0], [0.5, 0.4, 0.3]);
-    fs::write(&g, glb(&v, &t)).unwrap();
-    let csv = dir.join("box.csv");
-    fs::write(
-        &csv,
+    box_along(
+        dir,
+        "box",
+        [0.5, 0.4, 0.3],
         "tx,ty,tz,qw,qx,qy,qz\n0,0,0,1,0,0,0\n0.5,0,0,1,0,0,0\n1,0,0,1,0,0,0\n",
     )
-    .unwrap();
-    (g, csv)
+}
+
+/// `dir/name.glb`, the box [0, size], and `dir/name.csv` holding `csv`.
+fn box_along(dir: &Path, name: &str, size: [f64; 3], csv: &str) -> (PathBuf, PathBuf) {
+    let (v, t) = cuboid([0.0; 3], size);
+    (
+        write(dir, &format!("{name}.glb"), glb(&v, &t)),
+        write(dir, &format!("{name}.csv"), csv),
+    )
 }
 
 #[test]
