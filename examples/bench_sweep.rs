@@ -18,6 +18,7 @@ use std::time::Instant;
 use glam::{DMat4, DQuat, DVec3, Vec3};
 use sweptvol::input::grid::{Accuracy, Overrides};
 use sweptvol::input::model::{Generator, Trajectory};
+use sweptvol::input::motion::Motion;
 use sweptvol::input::posed;
 use sweptvol::io::gltf_in;
 use sweptvol::sweep::backend::{Backend, BackendChoice};
@@ -120,6 +121,7 @@ fn main() -> anyhow::Result<()> {
         Path::new("bench"),
         Accuracy::Resolution(resolution),
         Overrides::default(),
+        Motion::Discrete,
     )?;
     let backend = Backend::acquire(backend)?;
     let t = Instant::now();

@@ -11,6 +11,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use sweptvol::error::{self, OptionError, OptionKey};
 use sweptvol::input::grid::{Accuracy, Overrides};
+use sweptvol::input::motion::Motion;
 use sweptvol::io::mesh_formats::MeshFormat;
 use sweptvol::pipeline::{self, RunOptions};
 use sweptvol::sweep::backend::{Backend, BackendChoice};
@@ -79,6 +80,23 @@ impl From<BoundScopeArg> for BoundScope {
         match b {
             BoundScopeArg::Everywhere => BoundScope::Everywhere,
             BoundScopeArg::AxisVisible => BoundScope::AxisVisible,
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+enum MotionArg {
+    /// The screw motion from each row to the next (every point of it is covered).
+    Screw,
+    /// Only the listed poses (the paper's method).
+    Discrete,
+}
+
+impl From<MotionArg> for Motion {
+    fn from(m: MotionArg) -> Self {
+        match m {
+            MotionArg::Screw => Motion::Screw,
+            MotionArg::Discrete => Motion::Discrete,
         }
     }
 }
@@ -227,6 +245,10 @@ struct RunArgs {
     /// box) exceeds what is available; for thin or sparse parts it can be far too high.
     #[arg(long)]
     no_memory_check: bool,
+    /// What moves the part between rows: `screw`, the constant-velocity screw motion from each
+    /// row to the next, covered with a derived bound; or `discrete`, only the listed poses.
+    #[arg(long, value_enum, default_value = "screw")]
+    motion: MotionArg,
     /// Replace existing outputs.
     #[arg(long)]
     overwrite: bool,
@@ -270,6 +292,7 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
         keep_start_mesh: args.keep_start_mesh,
         also: args.also.iter().map(|&f| f.into()).collect(),
         check_memory: !args.no_memory_check,
+        motion: args.motion.into(),
     };
     // Inputs first: a bad file is reported before any GPU start-up.
     let job = pipeline::prepare(&opts)?;

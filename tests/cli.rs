@@ -73,7 +73,13 @@ fn good_run_writes_all_outputs_and_never_overwrites_silently() {
     );
     let report: serde_json::Value =
         serde_json::from_slice(&fs::read(out.join("part.report.json")).unwrap()).unwrap();
-    assert_eq!(report["counts"]["posed_triangles"], 2);
+    // One triangle, rendered at each row and at the sub-poses of the screw motion between them.
+    assert_eq!(report["motion"]["model"], "screw");
+    assert!(report["motion"]["poses_rendered"].as_u64().unwrap() > 2);
+    assert_eq!(
+        report["counts"]["posed_triangles"],
+        report["motion"]["poses_rendered"]
+    );
     assert_eq!(report["resolution"], 32);
     assert!(report["parameters"]["rounding"].as_f64().unwrap() > 0.0);
     for key in ["read_inputs", "setup", "sweep", "write_outputs", "total"] {

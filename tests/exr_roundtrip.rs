@@ -11,6 +11,7 @@ use common::{check_samples, posed_grid_triangles, Rng};
 use glam::{DMat4, DVec3};
 use sweptvol::input::grid::{Accuracy, Overrides};
 use sweptvol::input::model::Trajectory;
+use sweptvol::input::motion::Motion;
 use sweptvol::input::posed;
 use sweptvol::io::exr_depth::{self, ExtraMeta, Side};
 use sweptvol::io::gltf_in;
@@ -33,6 +34,7 @@ fn exr_round_trip_is_outward_and_independently_readable() {
         Path::new("t.csv"),
         Accuracy::Resolution(40),
         Overrides::default(),
+        Motion::Discrete,
     )
     .unwrap();
     let images = cpu::sweep(&input, &Silent).unwrap();

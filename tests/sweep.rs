@@ -13,6 +13,7 @@ use glam::{DMat4, DVec3};
 use sweptvol::depth::{DepthImages, COLUMN_AXIS, ROW_AXIS};
 use sweptvol::input::grid::{Accuracy, Overrides};
 use sweptvol::input::model::{Generator, Pose, Trajectory};
+use sweptvol::input::motion::Motion;
 use sweptvol::input::posed::{self, SweepInput};
 use sweptvol::sweep::{cpu, gpu::Gpu, Silent};
 
@@ -172,6 +173,7 @@ fn degenerate_point_triangle_sweeps_a_ball() {
         Path::new("t.csv"),
         Accuracy::Tolerance(0.05),
         Overrides::default(),
+        Motion::Discrete,
     )
     .unwrap();
     let images = cpu::sweep(&input, &Silent).unwrap();
@@ -535,6 +537,7 @@ fn node_rows_move_only_their_own_part_and_static_parts_stay() {
         Path::new("t.csv"),
         Accuracy::Resolution(48),
         Overrides::default(),
+        Motion::Discrete,
     )
     .unwrap();
     assert_eq!(input.parts.len(), 2);

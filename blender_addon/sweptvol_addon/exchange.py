@@ -262,8 +262,9 @@ STATUS = "status.json"
 DEPTH_IMAGES = tuple(f"depth-{a}{s}.exr" for a in "xyz" for s in ("min", "max"))
 ALSO_OUTPUTS = {"stl": "swept.stl", "ply": "swept.ply", "obj": "swept.obj"}  # job.json `also`
 
-JOB_KEYS = ("resolution", "tolerance", "delta", "epsilon", "backend", "name",
+JOB_KEYS = ("resolution", "tolerance", "delta", "epsilon", "backend", "name", "motion",
             "target_triangles", "keep_start_mesh", "also")
+MOTIONS = ("screw", "discrete")  # job.json `motion`: the motion between rows covered, or not
 STATES = ("queued", "running", "done", "failed", "cancelled")  # status.json `state`
 FINISHED = ("done", "failed", "cancelled")
 
@@ -295,6 +296,8 @@ def job_options(**options):
         raise ValueError("the tolerance must be a positive number")
     if opts.get("backend", "auto") not in ("auto", "gpu", "cpu"):
         raise ValueError("the backend must be auto, gpu or cpu")
+    if opts.get("motion", "screw") not in MOTIONS:
+        raise ValueError("the motion must be screw or discrete")
     return opts
 
 

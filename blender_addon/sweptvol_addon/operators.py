@@ -419,7 +419,7 @@ class SWEPTVOL_OT_compute(bpy.types.Operator):
             self.report({"ERROR"}, str(e))
             return {"CANCELLED"}
         p = prefs.get(context)
-        options = {"backend": p.backend}
+        options = {"backend": p.backend, "motion": settings.motion}
         if settings.accuracy == "TOLERANCE":
             options["tolerance"] = float(settings.tolerance)
         else:

@@ -22,6 +22,12 @@ class SweptvolSettings(bpy.types.PropertyGroup):
         name="Tolerance", description="ε_global: how far the result may reach beyond the swept "
         "volume (smaller is slower)", default=0.05, min=1e-6, subtype="DISTANCE", unit="LENGTH",
         precision=4)
+    motion: bpy.props.EnumProperty(
+        name="Motion",
+        items=[("screw", "Continuous", "Cover the motion between samples: the screw motion from "
+                "each sample to the next, with the bound stated for it"),
+               ("discrete", "Samples only", "Cover only the sampled poses (the paper's method)")],
+        default="screw")
     resolution: bpy.props.IntProperty(
         name="Resolution", description="Voxels along the longest grid edge", default=256,
         min=8, max=4096)
@@ -57,6 +63,7 @@ class SWEPTVOL_PT_panel(bpy.types.Panel):
         col = layout.column(align=True)
         col.prop(s, "accuracy", expand=True)
         col.prop(s, "tolerance" if s.accuracy == "TOLERANCE" else "resolution")
+        layout.prop(s, "motion")
         row = layout.row()
         row.scale_y = 1.4
         row.operator("sweptvol.compute", icon="MOD_SOLIDIFY")

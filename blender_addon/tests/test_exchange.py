@@ -219,8 +219,9 @@ def test_abandon_removes_the_partial_folder(tmp_path):
 def test_job_options_validation():
     assert ex.job_options(tolerance=0.05, backend="cpu", resolution=None) == {
         "tolerance": 0.05, "backend": "cpu"}
+    assert ex.job_options(motion="discrete") == {"motion": "discrete"}
     for bad in ({"resolution": 64, "tolerance": 0.1}, {"colour": 1}, {"resolution": 0},
-                {"tolerance": -1.0}, {"backend": "tpu"}):
+                {"tolerance": -1.0}, {"backend": "tpu"}, {"motion": "linear"}):
         with pytest.raises(ValueError):
             ex.job_options(**bad)
     with pytest.raises(ValueError):

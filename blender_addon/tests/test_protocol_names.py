@@ -35,10 +35,11 @@ ADDON = {
     ("outputs", "depth_images"): list(ex.DEPTH_IMAGES),
     ("outputs", "also"): ex.ALSO_OUTPUTS,
     ("job_keys",): list(ex.JOB_KEYS),
+    ("motions",): list(ex.MOTIONS),
     ("states",): list(ex.STATES),
     ("finished_states",): list(ex.FINISHED),
 }
-AS_SETS = {("job_keys",), ("states",), ("finished_states",)}
+AS_SETS = {("job_keys",), ("motions",), ("states",), ("finished_states",)}
 
 
 def leaves(value, path=()):
@@ -111,8 +112,9 @@ EXPECTED = {
                 "depth_images": ["depth-xmin.exr", "depth-xmax.exr", "depth-ymin.exr",
                                  "depth-ymax.exr", "depth-zmin.exr", "depth-zmax.exr"],
                 "also": {"stl": "swept.stl", "ply": "swept.ply", "obj": "swept.obj"}},
-    "job_keys": ["resolution", "tolerance", "delta", "epsilon", "backend", "name",
+    "job_keys": ["resolution", "tolerance", "delta", "epsilon", "backend", "name", "motion",
                  "target_triangles", "keep_start_mesh", "also"],
+    "motions": ["screw", "discrete"],
     "states": ["queued", "running", "done", "failed", "cancelled"],
     "finished_states": ["done", "failed", "cancelled"],
 }

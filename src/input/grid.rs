@@ -102,13 +102,17 @@ pub struct Params {
     pub sigma: f64,
 }
 
-/// Fit a grid around the axis-aligned box [lo, hi] of all posed geometry.
+/// Fit a grid around the axis-aligned box [lo, hi] of all posed geometry. `mu_voxels` is the
+/// motion budget μ/h the sweep renders beyond δ (0 for discrete motion): the grid leaves room
+/// for it, and a tolerance then counts it in (h = t/(K_GLOBAL + μ/h)), so the stated bound
+/// stays within the tolerance.
 /// Errors name the option at fault and what to do about it.
 pub fn fit_grid(
     lo: DVec3,
     hi: DVec3,
     accuracy: Accuracy,
     overrides: Overrides,
+    mu_voxels: f64,
 ) -> Result<(Grid, Params), OptionError> {
     let extent = hi - lo;
     let longest = extent.max_element();
@@ -136,8 +140,8 @@ pub fn fit_grid(
                     "the posed geometry has zero extent, so $resolution cannot set the voxel size; give $tolerance instead",
                 ));
             }
-            // n·h = longest + 2δ + 2·margin·h, with δ either fixed or K_DELTA·h.
-            let free = n as f64 - 2.0 * MARGIN_VOXELS;
+            // n·h = longest + 2δ + 2·(margin + μ/h)·h, with δ either fixed or K_DELTA·h.
+            let free = n as f64 - 2.0 * (MARGIN_VOXELS + mu_voxels);
             match overrides.delta {
                 Some(delta) => (longest + 2.0 * delta) / free,
                 None => longest / (free - 2.0 * K_DELTA),
@@ -150,7 +154,7 @@ pub fn fit_grid(
                     format!("$tolerance {t} must be a positive number of world units"),
                 ));
             }
-            t / K_GLOBAL
+            t / (K_GLOBAL + mu_voxels)
         }
     };
     let params = Params {
@@ -159,7 +163,7 @@ pub fn fit_grid(
         sigma: K_SIGMA * h,
     };
     check_params(&params, h, overrides)?;
-    let pad = params.delta + MARGIN_VOXELS * h;
+    let pad = params.delta + (MARGIN_VOXELS + mu_voxels) * h;
     let mut dims = [0u32; 3];
     for a in 0..3 {
         let voxels = ((extent[a] + 2.0 * pad) / h * (1.0 - 1e-12)).ceil();
@@ -247,6 +251,7 @@ mod tests {
             DVec3::new(2.0, 1.0, 0.5),
             Accuracy::Resolution(100),
             Overrides::default(),
+            0.0,
         )
         .unwrap();
         assert_eq!(g.dims[0], 100);
@@ -267,6 +272,7 @@ mod tests {
             DVec3::ONE,
             Accuracy::Tolerance(0.01),
             Overrides::default(),
+            0.0,
         )
         .unwrap();
         assert!((g.h * K_GLOBAL - 0.01).abs() < 1e-15);
@@ -284,6 +290,7 @@ mod tests {
                     delta: d,
                     epsilon: e,
                 },
+                0.0,
             )
         };
         let e = fit(Some(0.001), None).unwrap_err();
@@ -311,8 +318,8 @@ mod tests {
     #[test]
     fn zero_extent_needs_a_tolerance() {
         let p = DVec3::new(1.0, 2.0, 3.0);
-        assert!(fit_grid(p, p, Accuracy::Resolution(64), Overrides::default()).is_err());
-        let (g, _) = fit_grid(p, p, Accuracy::Tolerance(0.1), Overrides::default()).unwrap();
+        assert!(fit_grid(p, p, Accuracy::Resolution(64), Overrides::default(), 0.0).is_err());
+        let (g, _) = fit_grid(p, p, Accuracy::Tolerance(0.1), Overrides::default(), 0.0).unwrap();
         assert!(g.dims.iter().all(|&d| d >= 7));
     }
 }

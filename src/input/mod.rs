@@ -6,4 +6,5 @@
 pub mod grid;
 pub mod memory;
 pub mod model;
+pub mod motion;
 pub mod posed;

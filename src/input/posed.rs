@@ -10,6 +10,7 @@ use serde::Serialize;
 use crate::error::{num, InputError, OptionError, OptionKey};
 use crate::input::grid::{fit_grid, Accuracy, Grid, Overrides, Params};
 use crate::input::model::{Generator, Trajectory};
+use crate::input::motion::{self, Motion, MotionReport, MU_VOXELS};
 
 /// Unit roundoff of f32.
 const U32: f64 = f32::EPSILON as f64 / 2.0;
@@ -30,7 +31,9 @@ const F32_ABS_ROUNDING: f64 = 7.006_492_321_624_085e-46;
 
 /// A world pose of a part and the CSV line of the row that gives it (None: the part stands
 /// where the glTF puts it).
-type LinedPose = (DMat4, Option<u64>);
+pub(crate) type LinedPose = (DMat4, Option<u64>);
+/// A part (index into the generator's parts), its poses in order, and whether no row names it.
+pub(crate) type PartPoses = (usize, Vec<LinedPose>, bool);
 
 /// A part as the sweep sees it: its triangles and the poses that move it.
 #[derive(Clone, Debug, Serialize)]
@@ -54,8 +57,11 @@ pub struct SweepInput {
     pub params: Params,
     /// Rounding term ρ added to δ, grid units (see [`rounding_term`]).
     pub rounding: f64,
-    /// Radius rendered around every posed triangle, grid units: f32 of δ/h + ρ, rounded up.
+    /// Radius rendered around every posed triangle, grid units: f32 of δ/h + μ/h + ρ, rounded
+    /// up.
     pub radius: f32,
+    /// The motion between rows and the budget μ it adds to the radius (0 for discrete motion).
+    pub motion: MotionReport,
     /// Triangles as 9 floats (three local vertices), all parts concatenated.
     pub triangles: Vec<[f32; 9]>,
     /// Row-major 3x4 matrices mapping a part's local frame to grid units.
@@ -217,7 +223,9 @@ pub fn rounding_term(pose_s_max: f64, grid: &Grid, delta_voxels: f64) -> f64 {
     3f64.sqrt() * 6.0 * U32 * pose_s_max + RAY_ROUNDING_FACTOR * U32 * b
 }
 
-/// Build the sweep input. The paths name the inputs in errors.
+/// Build the sweep input. The paths name the inputs in errors. With [`Motion::Screw`] the poses
+/// include the sub-poses between rows that leave every point of the motion within μ of one
+/// (`input::motion`), and the radius grows by μ.
 pub fn build(
     generator: &Generator,
     gltf_path: &Path,
@@ -225,11 +233,36 @@ pub fn build(
     csv_path: &Path,
     accuracy: Accuracy,
     overrides: Overrides,
+    motion: Motion,
 ) -> anyhow::Result<SweepInput> {
     let assigned = assign_poses(generator, trajectory, csv_path)?;
-    let (lo, hi) = posed_bounds(generator, &assigned);
-    let (grid, params) = fit_grid(lo, hi, accuracy, overrides)?;
+    let intervals = match motion {
+        Motion::Screw => motion::intervals(generator, trajectory, csv_path, &assigned)?,
+        Motion::Discrete => Vec::new(),
+    };
+    let (mut lo, mut hi) = posed_bounds(generator, &assigned);
+    // The grid holds every instant of the motion (the sweep would clip what lies outside).
+    let motion_box = (!intervals.is_empty())
+        .then(|| motion::motion_box(generator, &intervals, (hi - lo).max_element()));
+    let finite = |(a, b): (DVec3, DVec3)| a.is_finite() && b.is_finite();
+    if let Some(m) = motion_box.filter(|&m| finite(m)) {
+        (lo, hi) = (lo.min(m.0), hi.max(m.1));
+    }
+    let mu_voxels = if intervals.is_empty() { 0.0 } else { MU_VOXELS };
+    let (grid, params) = fit_grid(lo, hi, accuracy, overrides, mu_voxels)?;
+    // Rows too far out for f32 are refused by line first; a motion box that overflowed
+    // otherwise would leave instants outside the grid: refused too, never clipped.
     check_world_range(generator, gltf_path, csv_path, &assigned, &grid)?;
+    if motion_box.is_some_and(|m| !finite(m)) {
+        anyhow::bail!("the continuous motion's bounding box overflows f64: move the part nearer the world origin, or pass --motion discrete");
+    }
+    let (assigned, mut motion_report) = if intervals.is_empty() {
+        let poses = assigned.iter().map(|(_, p, _)| p.len() as u64).sum();
+        (assigned, motion::discrete_report(poses))
+    } else {
+        motion::with_sub_poses(generator, &assigned, &intervals, mu_voxels * grid.h)?
+    };
+    motion_report.model = motion.name();
     let to_grid =
         DMat4::from_scale(DVec3::splat(1.0 / grid.h)) * DMat4::from_translation(-grid.origin());
 
@@ -277,7 +310,7 @@ pub fn build(
             is_static: *is_static,
         });
     }
-    let delta_voxels = params.delta / grid.h;
+    let delta_voxels = params.delta / grid.h + mu_voxels;
     let rounding = rounding_term(pose_s_max, &grid, delta_voxels);
     if rounding > MAX_ROUNDING_VOXELS {
         let grid_only = rounding_term(0.0, &grid, delta_voxels);
@@ -306,6 +339,7 @@ pub fn build(
         params,
         rounding,
         radius,
+        motion: motion_report,
         triangles,
         poses,
         parts,

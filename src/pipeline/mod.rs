@@ -24,6 +24,7 @@ use report::HAUSDORFF_SCOPE;
 use crate::depth::AXIS_NAMES;
 use crate::error::{OptionError, OptionKey};
 use crate::input::grid::{Accuracy, Overrides};
+use crate::input::motion::Motion;
 use crate::input::posed::{self, SweepInput};
 use crate::io::exr_depth::{self, ExtraMeta};
 use crate::io::mesh_formats::MeshFormat;
@@ -57,6 +58,8 @@ pub struct RunOptions {
     pub also: Vec<MeshFormat>,
     /// Refuse a run whose estimated memory (`memory::estimate`) exceeds what is available.
     pub check_memory: bool,
+    /// What moves the parts between rows: the screw motion (covered) or nothing (discrete).
+    pub motion: Motion,
 }
 
 /// A job whose inputs are read and checked and whose sweep input is built: everything that can
@@ -102,6 +105,7 @@ pub fn prepare(opts: &RunOptions) -> anyhow::Result<Prepared> {
         &opts.trajectory,
         opts.accuracy,
         opts.overrides,
+        opts.motion,
     )?;
     let band = SimplifyOptions::for_params(&input.params, input.grid.h, opts.target_triangles)?;
     if opts.check_memory {
@@ -205,8 +209,10 @@ pub fn execute(
     let t_mesh = Instant::now();
 
     checkpoint(observer, "write")?;
+    let mu = input.motion.mu;
     let extra = ExtraMeta {
-        delta: input.params.delta,
+        // The offset radius the images hold (before rounding): δ + μ.
+        delta: input.params.delta + mu,
         rounding: input.rounding * h,
     };
     std::fs::create_dir_all(&opts.out_dir).with_context(|| {
@@ -237,9 +243,11 @@ pub fn execute(
         joined_voxel_reach: join_reach * h,
         // A mesh point is within ε of the classifier's voxel boundary (a new triangle), or on a
         // face of an inside voxel: √3h/2 from an original voxel's centre, or `join_reach` from
-        // one for a joined voxel. Each such centre is within δ + 2ρ of the swept volume.
+        // one for a joined voxel. Each such centre is within δ + μ + 2ρ of a rendered pose,
+        // and every rendered pose (a row or a sub-pose) is a pose of the motion.
         hausdorff_bound: (input.params.epsilon + eps_voxel).max(join_reach * h)
             + input.params.delta
+            + mu
             + 2.0 * input.rounding * h
             + output_rounding,
         hausdorff_bound_scope: HAUSDORFF_SCOPE,
@@ -292,10 +300,11 @@ pub fn execute(
             epsilon: input.params.epsilon,
             sigma: input.params.sigma,
             rounding: input.rounding * h,
-            delta_rendered: input.params.delta + input.rounding * h,
-            delta_upper: input.params.delta + 2.0 * input.rounding * h,
-            epsilon_global: input.params.epsilon + input.params.delta + input.params.sigma,
+            delta_rendered: input.params.delta + mu + input.rounding * h,
+            delta_upper: input.params.delta + mu + 2.0 * input.rounding * h,
+            epsilon_global: input.params.epsilon + input.params.delta + input.params.sigma + mu,
         },
+        motion: input.motion.clone(),
         backend: backend.describe(),
         counts: CountsReport {
             triangles: input.triangles.len() as u64,

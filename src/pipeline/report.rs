@@ -6,6 +6,7 @@ use std::path::PathBuf;
 use serde::Serialize;
 
 use crate::input::grid::Grid;
+use crate::input::motion::MotionReport;
 use crate::input::posed::PartRange;
 use crate::mesh::ManifoldDefects;
 use crate::simplify::SimplifyStats;
@@ -22,6 +23,8 @@ pub struct Report {
     /// Voxels along the longest edge (the paper's n).
     pub resolution: u32,
     pub parameters: ParametersReport,
+    /// The motion between rows: the model, the budget μ, the poses rendered.
+    pub motion: MotionReport,
     pub backend: String,
     pub counts: CountsReport,
     /// Seconds per stage.
@@ -57,13 +60,14 @@ pub struct MeshReport {
     /// Enclosed volume, world units³.
     pub volume: f64,
     /// Guaranteed one-sided Hausdorff distance from the mesh to the swept volume wherever its
-    /// concavities are visible along some axis: max(ε + √3h/2, joined voxel reach) + δ + 2ρ +
-    /// output rounding.
+    /// concavities are visible along some axis: max(ε + √3h/2, joined voxel reach) + δ + μ +
+    /// 2ρ + output rounding (μ: the motion budget, 0 for discrete motion).
     pub hausdorff_bound: f64,
     /// Where `hausdorff_bound` holds, in words (it is not a global bound).
     pub hausdorff_bound_scope: &'static str,
-    /// Every point of the mesh is at least this far outside the swept volume:
-    /// δ - √3h/2 - ε - output rounding.
+    /// Every point of the mesh is at least this far outside the swept volume (of the whole
+    /// motion for screw motion: μ is rendered beyond δ and spent again on the motion between
+    /// sub-poses): δ - √3h/2 - ε - output rounding.
     pub clearance: f64,
     /// Farthest a vertex moves when written as f32 (Euclidean, world units).
     pub output_rounding: f64,
@@ -87,11 +91,11 @@ pub struct ParametersReport {
     pub sigma: f64,
     /// Added to δ against f32 rounding (derived in `input::posed::rounding_term`).
     pub rounding: f64,
-    /// The radius rendered: δ + rounding.
+    /// The radius rendered: δ + μ (the motion budget) + rounding.
     pub delta_rendered: f64,
-    /// Every depth lies within the offset of radius δ + 2·rounding of the posed triangles.
+    /// Every depth lies within the offset of radius δ + μ + 2·rounding of the rendered poses.
     pub delta_upper: f64,
-    /// The paper's ε_global = ε + δ + σ for the mesh stage.
+    /// The paper's ε_global = ε + δ + σ for the mesh stage, plus μ for screw motion.
     pub epsilon_global: f64,
 }
 

@@ -1,6 +1,7 @@
 //! The exchange protocol (docs/exchange-protocol.md): which names in a watched folder mean what,
 //! and the schemas of `job.json` (read) and `status.json` (written). Keep the doc in step.
 
+use crate::input::motion::Motion;
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
@@ -98,6 +99,7 @@ pub fn names_json() -> serde_json::Value {
             "also": also,
         },
         "job_keys": JOB_KEY_LIST,
+        "motions": [Motion::Screw.name(), Motion::Discrete.name()],
         "states": State::ALL.map(State::as_str),
         "finished_states": State::ALL.into_iter().filter(|s| s.is_finished()).map(State::as_str).collect::<Vec<_>>(),
     })
@@ -326,10 +328,12 @@ pub struct JobOptions {
     pub keep_start_mesh: Option<bool>,
     /// Extra mesh formats: any of "stl", "ply", "obj".
     pub also: Option<Vec<MeshFormat>>,
+    /// "screw" (the default: the motion between rows is covered) or "discrete".
+    pub motion: Option<Motion>,
 }
 
 /// The keys of `job.json`, as `JobOptions` names its fields.
-pub const JOB_KEY_LIST: [&str; 9] = [
+pub const JOB_KEY_LIST: [&str; 10] = [
     "resolution",
     "tolerance",
     "delta",
@@ -339,6 +343,7 @@ pub const JOB_KEY_LIST: [&str; 9] = [
     "target_triangles",
     "keep_start_mesh",
     "also",
+    "motion",
 ];
 
 /// Parse `job.json` bytes; `path` names the file in errors (with serde_json's line and column).
@@ -392,6 +397,7 @@ impl JobOptions {
             keep_start_mesh: self.keep_start_mesh.unwrap_or(false),
             also: self.also.clone().unwrap_or_default(),
             check_memory: true,
+            motion: self.motion.unwrap_or_default(),
         }
     }
 }
@@ -452,6 +458,7 @@ mod tests {
                 "name" => "\"x\"",
                 "keep_start_mesh" => "true",
                 "also" => "[\"stl\"]",
+                "motion" => "\"discrete\"",
                 _ => "1",
             };
             let json = format!("{{\"{key}\": {value}}}");

@@ -9,6 +9,7 @@ use glam::{DMat4, DVec3, Vec3};
 use sweptvol::depth::{DepthImages, COLUMN_AXIS, ROW_AXIS};
 use sweptvol::input::grid::{Accuracy, Overrides};
 use sweptvol::input::model::{Generator, Part, Trajectory};
+use sweptvol::input::motion::Motion;
 use sweptvol::input::posed::{self, SweepInput};
 
 pub type V3 = [f64; 3];
@@ -257,8 +258,13 @@ pub fn random_rigid_poses(rng: &mut Rng) -> Vec<DMat4> {
         .collect()
 }
 
-/// The sweep input for `g` moved whole along `poses`, at resolution `n`.
+/// The sweep input for `g` at the listed `poses` only (discrete motion), at resolution `n`.
 pub fn build(g: &Generator, poses: &[DMat4], n: u32) -> SweepInput {
+    build_with(g, poses, n, Motion::Discrete)
+}
+
+/// The sweep input for `g` moved whole along `poses` by `motion`, at resolution `n`.
+pub fn build_with(g: &Generator, poses: &[DMat4], n: u32, motion: Motion) -> SweepInput {
     posed::build(
         g,
         Path::new("test.glb"),
@@ -266,6 +272,7 @@ pub fn build(g: &Generator, poses: &[DMat4], n: u32) -> SweepInput {
         Path::new("test.csv"),
         Accuracy::Resolution(n),
         Overrides::default(),
+        motion,
     )
     .expect("job builds")
 }
