@@ -214,6 +214,46 @@ fn numbers_beyond_f32_precision_are_refused_before_the_sweep_by_line() {
     }
 }
 
+/// Rows the screw motion cannot follow are refused by line, before the sweep, with the fix; the
+/// same rows sweep with `--motion discrete`, which covers only the listed poses.
+#[test]
+fn motions_the_screw_cannot_follow_are_refused_by_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let g = write(d, "part.gltf", gltf_doc(json!({})).to_string());
+    let head = "frame,tx,ty,tz,qw,qx,qy,qz\n0,0,0,0,1,0,0,0\n";
+    for (file, row, needles) in [
+        // A half turn about y: which way it turned is not in the rows.
+        (
+            "half.csv",
+            "1,0,0,0,0,0,1,0",
+            &["half.csv:3", "180", "add a row between them"][..],
+        ),
+        // Back in time.
+        (
+            "back.csv",
+            "-1,0.1,0,0,1,0,0,0",
+            &["back.csv:3", "back in time", "sort the rows"][..],
+        ),
+        // A time that is no number.
+        (
+            "nan.csv",
+            "nan,0.1,0,0,1,0,0,0",
+            &["nan.csv:3", "frame"][..],
+        ),
+    ] {
+        let t = write(d, file, format!("{head}{row}\n"));
+        let args = run_args(&g, &t, &d.join("results"), &[]);
+        expect_refused(d, &args, needles);
+        if file != "nan.csv" {
+            let args = run_args(&g, &t, &d.join("results"), &["--motion", "discrete"]);
+            let o = sweptvol(&args);
+            assert!(o.status.success(), "{file} discrete: {}", stderr(&o));
+            fs::remove_dir_all(d.join("results")).unwrap();
+        }
+    }
+}
+
 #[test]
 fn a_run_that_cannot_fit_in_memory_is_refused_up_front() {
     let dir = tempfile::tempdir().unwrap();
