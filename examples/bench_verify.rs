@@ -192,6 +192,7 @@ fn main() -> anyhow::Result<()> {
             bound_scope: Default::default(),
             spacing: None,
             all_failures: false,
+            motion: Motion::Discrete,
         },
         &verify::Silent,
     )?;

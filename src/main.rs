@@ -193,6 +193,10 @@ struct VerifyArgs {
     /// failure (default: stop there, since the certificate has failed).
     #[arg(long)]
     all_failures: bool,
+    /// What to certify between rows: `screw`, every instant of the screw motion from each row
+    /// to the next (verify's own interpolation and bound); or `discrete`, the listed poses.
+    #[arg(long, value_enum, default_value = "screw")]
+    motion: MotionArg,
     /// Print the report as JSON on stdout (no progress bar).
     #[arg(long)]
     json: bool,
@@ -383,6 +387,7 @@ fn verify(args: VerifyArgs) -> anyhow::Result<ExitCode> {
         bound_scope: args.bound_scope.into(),
         spacing: args.spacing,
         all_failures: args.all_failures,
+        motion: args.motion.into(),
     };
     let bar = if args.quiet || args.json {
         ProgressBar::hidden()

@@ -139,8 +139,11 @@ fn run_output_passes_and_broken_copies_fail_with_the_right_message() {
     assert_eq!(r["passed"], true);
     let c = &r["containment"];
     assert_eq!(c["holds"], true);
-    assert_eq!(c["posed_triangles"], 36);
-    assert_eq!(c["certified"], 36);
+    // 12 triangles under every pose that stands for the screw motion.
+    let posed = 12 * r["motion"]["poses"].as_u64().unwrap();
+    assert!(posed > 36, "{}", r["motion"]);
+    assert_eq!(c["posed_triangles"], posed);
+    assert_eq!(c["certified"], posed);
     assert!(r["health"]["closed"].as_bool().unwrap());
     assert_eq!(r["health"]["components"], 1);
     assert_eq!(r["health"]["self_intersecting_pairs"], 0);
@@ -169,7 +172,9 @@ fn run_output_passes_and_broken_copies_fail_with_the_right_message() {
     let text = String::from_utf8_lossy(&o.stdout);
     assert_eq!(o.status.code(), Some(0), "{text}");
     assert!(
-        text.contains("36 of 36 posed triangles certified inside"),
+        text.contains(&format!(
+            "{posed} of {posed} posed triangles certified inside"
+        )),
         "{text}"
     );
     assert!(
@@ -311,7 +316,10 @@ fn analytic_box_hull_clearance_and_deviation() {
     fs::write(&m, glb(&v, &t)).unwrap();
     let (code, r) = verify_json(&g, &csv, &m, &["--spacing", &sp]);
     assert_eq!(code, 0, "{}", failures(&r));
-    assert_eq!(r["containment"]["certified"], 36);
+    assert_eq!(
+        r["containment"]["certified"],
+        r["containment"]["posed_triangles"]
+    );
     let dev = r["deviation"]["bound"].as_f64().unwrap();
     let lower = r["deviation"]["lower"].as_f64().unwrap();
     let exact = d * 3f64.sqrt();
@@ -365,7 +373,8 @@ fn analytic_box_hull_clearance_and_deviation() {
     let (code, r) = verify_json(&g, &csv, &m, &["--spacing", &sp]);
     assert_eq!(code, 3);
     let w = &r["containment"]["worst_outside"];
-    assert_eq!(w["csv_line"], 4, "{w}");
+    // The last row, or an instant of the motion towards it.
+    assert!(w["csv_line"] == 4 || w["between"]["to_line"] == 4, "{w}");
     let depth = w["distance"].as_f64().unwrap();
     assert!(depth > 0.0 && depth <= 0.01 + 1e-9, "{depth}");
 }
@@ -557,4 +566,55 @@ fn pinched_meshes_fail_as_not_manifold() {
     assert_eq!(code, 0, "{}", failures(&r));
     assert_eq!(r["health"]["watertight_manifold"], true);
     assert_eq!(r["health"]["non_manifold_vertices"], 0);
+}
+
+/// A rod turning 90° about one end in two rows. `verify` (screw motion by default, its own
+/// interpolation and bound) passes the continuous output and fails the discrete one, naming
+/// the row interval and the place; `--motion discrete` passes both.
+#[test]
+fn verify_certifies_the_motion_between_rows_and_fails_a_discrete_output() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let (g, t) = box_along(
+        d,
+        "rod",
+        [4.0, 0.2, 0.2],
+        "frame,tx,ty,tz,qw,qx,qy,qz\n0,0,0,0,1,0,0,0\n1,0,0,0,0.70710678118654752,0,0,0.70710678118654752\n",
+    );
+    let mesh = |motion: &str| {
+        let out = d.join(motion);
+        let o = sweptvol(&run_args(
+            &g,
+            &t,
+            &out,
+            &["--resolution", "48", "--motion", motion],
+        ));
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        out.join("rod.swept.glb")
+    };
+    let (screw, discrete) = (mesh("screw"), mesh("discrete"));
+
+    let (code, r) = verify_json(&g, &t, &screw, &[]);
+    assert_eq!(code, 0, "{}", failures(&r));
+    assert_eq!(r["motion"]["model"], "screw");
+    assert!(r["motion"]["poses"].as_u64().unwrap() > 2);
+
+    let (code, r) = verify_json(&g, &t, &discrete, &[]);
+    assert_eq!(code, 3, "the discrete output passed the continuous check");
+    let f = failures(&r);
+    assert!(
+        f.contains("containment")
+            && f.contains("screw motion from pose row 0")
+            && f.contains("line 3"),
+        "{f}"
+    );
+    let w = &r["containment"]["worst_outside"];
+    let s = w["between"]["s"].as_f64().unwrap();
+    assert!(s > 0.0 && s < 1.0, "{w}");
+
+    for m in [&screw, &discrete] {
+        let (code, r) = verify_json(&g, &t, m, &["--motion", "discrete"]);
+        assert_eq!(code, 0, "{}", failures(&r));
+        assert_eq!(r["motion"]["model"], "discrete");
+    }
 }

@@ -451,7 +451,10 @@ def main(state):
         bpy.ops.sweptvol.compute(wait=True, timeout=120)
         raise AssertionError("a tolerance of 1e-6 should fail in the daemon")
     except RuntimeError as e:
-        check("sweptvol failed" in str(e) and "larger tolerance" in str(e), f"not the daemon's message: {e}")
+        # The daemon's message, worded by the panel's field (exchange.failure_text).
+        check("sweptvol failed" in str(e) and "larger Tolerance" in str(e)
+              and "change Tolerance in the Swept Volume panel" in str(e),
+              f"not the daemon's message in the panel's terms: {e}")
         log("daemon error reported:", str(e).strip())
     check(operators.JOBS[-1]["state"] == "failed", f"state {operators.JOBS[-1]['state']}")
     settings.accuracy = "RESOLUTION"

@@ -18,7 +18,7 @@ use serde::Serialize;
 
 use super::bvh::Bvh;
 use super::geom;
-use super::poses::{Cluster, PosedPart};
+use super::poses::{Between, Cluster, PosedPart};
 use super::winding::Winding;
 use super::Progress;
 
@@ -56,6 +56,9 @@ pub struct OutsidePoint {
     /// Trajectory row (0-based) and its CSV line; None for a part that no row moves.
     pub pose_row: Option<u32>,
     pub csv_line: Option<u64>,
+    /// For continuous motion: the instant is on the way from that row to a later one.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub between: Option<Between>,
 }
 
 /// Counts are of posed triangles (generator triangle × pose), unless named samples.
@@ -260,6 +263,7 @@ fn outside_point(ctx: &Ctx, p: DVec3, triangle: u32, pose: u32) -> OutsidePoint 
         triangle,
         pose_row: pose.row,
         csv_line: pose.line,
+        between: pose.between,
     }
 }
 

@@ -11,6 +11,7 @@ pub mod containment;
 pub mod deviation;
 pub mod geom;
 pub mod health;
+pub mod motion;
 pub mod nearest;
 pub mod pockets;
 pub mod poses;
@@ -27,6 +28,7 @@ use glam::DVec3;
 use serde::Serialize;
 
 use crate::error::{OptionError, OptionKey};
+use crate::input::motion::Motion;
 use crate::io::{gltf_in, trajectory};
 use bvh::Bvh;
 use containment::{Containment, Target};
@@ -79,6 +81,8 @@ pub struct VerifyOptions {
     /// Search on after the first posed triangle proven outside and count every failure
     /// (default: stop there, the certificate has failed).
     pub all_failures: bool,
+    /// Certify the screw motion between rows (the default), or only the listed poses.
+    pub motion: Motion,
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -136,6 +140,8 @@ pub struct Report {
     pub failures: Vec<String>,
     pub inputs: Inputs,
     pub health: Health,
+    /// The motion certified: the model and the poses that stand for it.
+    pub motion: motion::MotionCheck,
     pub containment: ContainmentReport,
     pub deviation: DeviationReport,
     /// Seconds per stage.
@@ -170,6 +176,32 @@ pub fn verify(opts: &VerifyOptions, progress: &dyn Progress) -> anyhow::Result<R
     let assigned = poses::assign(&generator, &traj, &opts.trajectory)?;
     let t1 = Instant::now();
 
+    let (lo, hi) = mesh.iter().flatten().fold(
+        (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+        |(lo, hi), v| (lo.min(*v), hi.max(*v)),
+    );
+    let diagonal = (hi - lo).length();
+    let spacing = opts
+        .spacing
+        .unwrap_or(diagonal * DEFAULT_SPACING_FRACTION)
+        .max(f64::MIN_POSITIVE);
+    if let Some(s) = opts.spacing {
+        check_spacing(s, &mesh)?;
+    }
+    // Continuous motion: middle poses of sub-intervals whose reach is half the covering
+    // radius, so a certified ball still has room for the motion around its pose.
+    let (assigned, motion) = match opts.motion {
+        Motion::Screw => motion::continuous(&generator, assigned, spacing / 2.0, &opts.trajectory)?,
+        Motion::Discrete => {
+            let poses = assigned.iter().map(|p| p.len() as u64).sum();
+            let check = motion::MotionCheck {
+                model: "discrete",
+                poses,
+                ..Default::default()
+            };
+            (assigned, check)
+        }
+    };
     let parts: Vec<PosedPart> = generator
         .parts
         .iter()
@@ -187,18 +219,6 @@ pub fn verify(opts: &VerifyOptions, progress: &dyn Progress) -> anyhow::Result<R
             )
         })
         .collect();
-    let (lo, hi) = mesh.iter().flatten().fold(
-        (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
-        |(lo, hi), v| (lo.min(*v), hi.max(*v)),
-    );
-    let diagonal = (hi - lo).length();
-    let spacing = opts
-        .spacing
-        .unwrap_or(diagonal * DEFAULT_SPACING_FRACTION)
-        .max(f64::MIN_POSITIVE);
-    if let Some(s) = opts.spacing {
-        check_spacing(s, &mesh)?;
-    }
     let scale = lo.abs().max(hi.abs()).max_element().max(diagonal);
     let mesh_bvh = Bvh::build(mesh.clone(), 4);
     let t2 = Instant::now();
@@ -228,7 +248,10 @@ pub fn verify(opts: &VerifyOptions, progress: &dyn Progress) -> anyhow::Result<R
     let t4 = Instant::now();
 
     progress.stage("deviation (mesh triangles)", mesh.len() as u64);
-    let deviation = deviation::check(&parts, &mesh, spacing, progress);
+    let mut deviation = deviation::check(&parts, &mesh, spacing, progress);
+    // Distances to the middle poses bound those to the motion from above (they are instants
+    // of it); from below only up to their reach.
+    deviation.lower = (deviation.lower - motion.max_reach).max(0.0);
     let t5 = Instant::now();
 
     // Beyond the limit: are those places filled pockets (hidden from all six axes)?
@@ -331,6 +354,7 @@ pub fn verify(opts: &VerifyOptions, progress: &dyn Progress) -> anyhow::Result<R
         sweptvol_version: env!("CARGO_PKG_VERSION").into(),
         passed: failures.is_empty(),
         failures,
+        motion,
         inputs: Inputs {
             generator: opts.generator.clone(),
             trajectory: opts.trajectory.clone(),

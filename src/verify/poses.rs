@@ -5,6 +5,7 @@
 use std::path::Path;
 
 use glam::{DMat4, DVec3};
+use serde::Serialize;
 
 use super::bvh::Bvh;
 use super::geom;
@@ -23,6 +24,19 @@ pub struct PartPose {
     pub row: Option<u32>,
     /// CSV line of that row.
     pub line: Option<u64>,
+    /// For a pose of the continuous motion between `row` and a later row: every instant this
+    /// pose stands for puts every point of the part within `reach` of where this pose puts it
+    /// (0 for a row itself; `verify::motion`).
+    pub reach: f64,
+    pub between: Option<Between>,
+}
+
+/// Where a pose of the continuous motion lies: on the way from its row to `to_row`, at s.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct Between {
+    pub to_row: u32,
+    pub to_line: u64,
+    pub s: f64,
 }
 
 impl PartPose {
@@ -38,6 +52,8 @@ impl PartPose {
             sigma_min,
             row,
             line,
+            reach: 0.0,
+            between: None,
         }
     }
 }
@@ -140,6 +156,8 @@ pub struct Cluster {
     pub alpha: f64,
     /// max_i |P_i(origin) - P_ref(origin)|.
     pub beta: f64,
+    /// The largest reach of the set's poses ([`PartPose::reach`]).
+    pub reach: f64,
     /// Children (inner clusters only).
     pub left: u32,
     pub right: u32,
@@ -152,12 +170,13 @@ impl Cluster {
     pub fn pose_count(&self) -> u32 {
         self.hi - self.lo
     }
-    /// Bound on |P_i y - P_ref y| for every pose i of the set and y in the local ball (c, r).
+    /// Bound on |P(y) - P_ref y| for every pose i of the set, every instant P that pose stands
+    /// for (its reach), and y in the local ball (c, r).
     pub fn spread(&self, origin: DVec3, c: DVec3, r: f64) -> f64 {
         if self.is_leaf() {
-            0.0
+            self.reach
         } else {
-            (self.alpha * ((c - origin).length() + r) + self.beta) * (1.0 + 1e-12)
+            (self.alpha * ((c - origin).length() + r) + self.beta) * (1.0 + 1e-12) + self.reach
         }
     }
 }
@@ -214,8 +233,9 @@ impl PoseTree {
             .expect("a cluster has poses");
         let r = poses[reference as usize].matrix;
         let r_origin = r.transform_point3(self.origin);
-        let (mut alpha, mut beta) = (0.0f64, 0.0f64);
+        let (mut alpha, mut beta, mut reach) = (0.0f64, 0.0f64, 0.0f64);
         for &i in perm.iter() {
+            reach = reach.max(poses[i as usize].reach);
             let m = poses[i as usize].matrix;
             let d = [
                 m.x_axis - r.x_axis,
@@ -237,6 +257,7 @@ impl PoseTree {
             reference,
             alpha,
             beta,
+            reach,
             left: 0,
             right: 0,
         });

@@ -25,7 +25,17 @@ pub(super) fn describe_outside(w: &containment::OutsidePoint) -> String {
         w.node_name,
         w.node,
         w.triangle,
-        describe_pose(w.pose_row, w.csv_line)
+        match w.between {
+            Some(b) => format!(
+                "on the screw motion from pose row {} (CSV line {}) to row {} (line {}), at s = {:.4}",
+                w.pose_row.unwrap_or(0),
+                w.csv_line.unwrap_or(0),
+                b.to_row,
+                b.to_line,
+                b.s
+            ),
+            None => describe_pose(w.pose_row, w.csv_line),
+        }
     )
 }
 
@@ -64,6 +74,21 @@ impl Report {
             h.degenerate_triangles,
             h.signed_volume
         );
+        let m = &self.motion;
+        s += &if m.model == "screw" {
+            format!(
+                "motion: screw between rows ({} intervals), certified through {} poses each standing for its part of the motion within {} (largest path of an interval {})\n",
+                m.intervals,
+                m.poses,
+                fmt_len(m.max_reach),
+                fmt_len(m.max_path)
+            )
+        } else {
+            format!(
+                "motion: discrete, the {} listed poses only (the motion between rows is not certified)\n",
+                m.poses
+            )
+        };
         let r = &c.result;
         s += &format!(
             "containment (generalized winding number >= 1/2 with clearance >= covering radius; finest covering radius {}): {} of {} posed triangles certified inside, {} with points outside, {} too close to certify ({} ball tests, {} winding numbers, {} outside samples, {} uncertain samples)\n",
