@@ -74,7 +74,7 @@ target/release/sweptvol verify --generator examples/bunny.glb --trajectory examp
 
 say "Blender add-on: exchange, daemon control, version handling, names vs the binary's (pytest, no Blender)"
 "$venv/bin/python" -m pytest -q -p no:cacheprovider blender_addon/tests/test_exchange.py \
-    blender_addon/tests/test_compat.py blender_addon/tests/test_daemon.py \
+    blender_addon/tests/test_compat.py blender_addon/tests/test_daemon.py blender_addon/tests/test_sampling.py \
     blender_addon/tests/test_protocol_names.py
 
 say "Blender add-on: Blender 3.4, 4.2, 4.5, 5.0, legacy and extension installs, headless, real daemon"

@@ -253,6 +253,8 @@ GENERATOR_GLTF = "generator.gltf"  # the other accepted generator form (the add-
 TRAJECTORY = "trajectory.csv"
 JOB_JSON = "job.json"
 CANCEL = "cancel"
+# The add-on's own record of its adaptive sampling (sampling.py): the daemon never reads it.
+SAMPLING = "sampling.json"
 
 # What the daemon writes there
 MESH = "swept.glb"
@@ -319,12 +321,15 @@ def _write_file(path, data):
         os.fsync(f.fileno())
 
 
-def write_job_inputs(partial, csv_text, options):
+def write_job_inputs(partial, csv_text, options, sampling=None):
     """Write trajectory.csv and job.json into a `.partial` folder (generator.glb is written by
-    the exporter beside them)."""
+    the exporter beside them), and the sampling record as sampling.json when there is one."""
     _write_file(os.path.join(partial, TRAJECTORY), csv_text.encode("utf-8"))
     job_json = json.dumps(job_options(**options), indent=1) + "\n"
     _write_file(os.path.join(partial, JOB_JSON), job_json.encode())
+    if sampling is not None:
+        text = json.dumps(sampling, indent=1, allow_nan=False) + "\n"
+        _write_file(os.path.join(partial, SAMPLING), text.encode())
 
 
 def commit_job(partial):
@@ -370,6 +375,11 @@ def read_status(job_dir):
     return read_json(os.path.join(job_dir, STATUS))
 
 
+def read_sampling(job_dir):
+    """The add-on's sampling record of a job (sampling.json), or None."""
+    return read_json(os.path.join(job_dir, SAMPLING))
+
+
 def read_report(job_dir):
     return read_json(os.path.join(job_dir, REPORT))
 
@@ -407,8 +417,10 @@ def describe_status(status):
     return state
 
 
-def result_summary(report):
-    """The custom properties put on the imported mesh: the guarantee and the counts."""
+def result_summary(report, sampling=None):
+    """The custom properties put on the imported mesh: the guarantee and the counts, and with a
+    sampling record (sampling.json) how far Blender's motion strayed from the continuous motion
+    the sweep covers at the checked sub-frames."""
     mesh = report.get("mesh", {}) if report else {}
     counts = report.get("counts", {}) if report else {}
     params = report.get("parameters", {}) if report else {}
@@ -425,6 +437,13 @@ def result_summary(report):
         ("sweptvol_generator_triangles", counts.get("triangles")),
         ("sweptvol_resolution", report.get("resolution") if report else None),
         ("sweptvol_version", report.get("sweptvol_version") if report else None),
+        ("sweptvol_motion", (report.get("motion") or {}).get("model") if report else None),
+        ("sweptvol_sampling_deviation", (sampling or {}).get("worst_deviation")),
+        ("sweptvol_sampling_threshold", (sampling or {}).get("threshold")),
+        ("sweptvol_sampling_finest_step", (sampling or {}).get("finest_step")),
+        ("sweptvol_sampling_rows_added", (sampling or {}).get("rows_added")),
+        ("sweptvol_sampling_probes", (sampling or {}).get("probes")),
+        ("sweptvol_sampling_unresolved", (sampling or {}).get("unresolved")),
     ):
         if isinstance(value, list):
             value = [v for v in value]

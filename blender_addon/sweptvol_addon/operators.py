@@ -11,7 +11,7 @@ import time
 import bpy
 import numpy as np
 
-from . import compat, daemon, exchange, prefs
+from . import compat, daemon, exchange, prefs, sampling
 
 COLLECTION = "Swept Volumes"
 MATERIAL = "sweptvol swept volume"
@@ -75,18 +75,19 @@ def deform_cause(obj):
     return "its mesh changes over time (drivers or animated mesh data)"
 
 
-def sample(context, objects, frames):
-    """World matrices (Blender space) per object per frame, and the rigid check.
-    Returns {name: [matrix per frame]} or raises ValueError naming the object and the cause."""
+def evaluate(context, objects, frames, ref):
+    """World matrices (Blender space) of each object at each frame, with the rigid check against
+    the first evaluated mesh of each object (kept in `ref`: {name: (local vertices, tolerance)}).
+    Returns {frame: {name: 4x4 array}} or raises ValueError naming the object and the cause."""
     scene = context.scene
-    ref = {}
-    worlds = {o.name: [] for o in objects}
+    out = {}
     for f in frames:
         set_frame(scene, f)
         depsgraph = context.evaluated_depsgraph_get()
+        out[f] = {}
         for o in objects:
             ev = o.evaluated_get(depsgraph)
-            worlds[o.name].append([list(row) for row in ev.matrix_world])
+            out[f][o.name] = np.array(ev.matrix_world, dtype=np.float64)
             co, ntris = _mesh_coords(o, depsgraph)
             if o.name not in ref:
                 if ntris == 0:
@@ -103,7 +104,52 @@ def sample(context, objects, frames):
                 raise ValueError(f"'{o.name}' cannot be swept as a rigid part: its mesh deforms "
                                  f"(by {err:.3g} at frame {f:g}); {deform_cause(o)}. Apply or "
                                  "remove the deformation, or sweep a rigid proxy")
-    return worlds
+    return out
+
+
+def deviation_threshold(options, placements, ref):
+    """The deviation from the screw motion allowed at a probe (sampling.threshold_for_*)."""
+    if "tolerance" in options:
+        return sampling.threshold_for_tolerance(options["tolerance"])
+    vertices = {name: co for name, (co, _) in ref.items()}
+    extent = sampling.posed_extent(placements, vertices)
+    if not extent > 0.0:
+        raise ValueError("the selected objects have no extent: nothing to sweep")
+    return sampling.threshold_for_resolution(extent, options["resolution"])
+
+
+def sample(context, objects, frames, options, halvings):
+    """Each object's frames and world matrices (Blender space), and the sampling record.
+
+    With continuous motion the frames of each object are refined where Blender's motion strays
+    from the screw motion the daemon covers (sampling.refine, at most `halvings` halvings of the
+    step); with discrete motion every object keeps the given frames and the record is None.
+    Returns ({name: [frame]}, {frame: {name: 4x4}}, record or None)."""
+    ref = {}
+    placements = evaluate(context, objects, frames, ref)
+    if options.get("motion") == "discrete" or len(frames) < 2:
+        return {o.name: list(frames) for o in objects}, placements, None
+    threshold = deviation_threshold(options, placements, ref)
+    records = sampling.refine(
+        frames, placements, lambda fs: evaluate(context, objects, fs, ref),
+        {name: co for name, (co, _) in ref.items()}, threshold, halvings)
+    step = frames[1] - frames[0]
+    record = sampling.summary(records, threshold, step, halvings)
+    return {name: rec.frames for name, rec in records.items()}, placements, record
+
+
+def unresolved_warning(record):
+    """A warning for the user where the halving limit left an interval off the screw, or ''."""
+    if not record or not record["unresolved"]:
+        return ""
+    worst = max(((o["object"], u) for o in record["objects"] for u in o["unresolved"]),
+                key=lambda x: x[1][2])
+    name, (a, b, dev) = worst
+    n = record["max_halvings"]
+    limit = f"even after {n} halving{'s' if n > 1 else ''}" if n else "with Halvings at 0"
+    return (f"'{name}' moves up to {dev:.3g} off the continuous motion the sweep covers between "
+            f"frames {a:g} and {b:g} {limit} (allowed: {record['threshold']:.3g}; "
+            f"{record['unresolved']} interval(s) in all): lower the frame step or raise Halvings")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -152,9 +198,10 @@ def export_generator(context, objects, path):
         view_layer.objects.active = old_active
 
 
-def submit(context, objects, frames, options):
-    """Export, write rows and job.json, commit. Returns the job folder. Raises on error
-    (ValueError for the user's data, OSError for the folder)."""
+def submit(context, objects, frames, options, halvings=sampling.DEFAULT_HALVINGS):
+    """Sample (and refine), export, write rows, job.json and the sampling record, commit.
+    Returns (job folder, sampling record or None). Raises on error (ValueError for the user's
+    data, OSError for the folder)."""
     p = prefs.get(context)
     folder = prefs.watch_folder(p)
     if not folder:
@@ -164,7 +211,7 @@ def submit(context, objects, frames, options):
     old_frame, old_sub = scene.frame_current, scene.frame_subframe
     partial = None
     try:
-        worlds = sample(context, objects, frames)
+        object_frames, placements, record = sample(context, objects, frames, options, halvings)
         label = "+".join(o.name for o in objects)
         name = exchange.job_name(label, folder)
         partial = exchange.begin_job(folder, name)
@@ -182,13 +229,14 @@ def submit(context, objects, frames, options):
                 raise ValueError(f"the glTF exporter wrote {len(placed.get(o.name, []))} mesh nodes "
                                  f"named '{o.name}' (expected one)")
             w = placed[o.name][0]
-            for f, m in zip(frames, worlds[o.name], strict=True):  # one matrix per frame
+            for f in object_frames[o.name]:  # the object's own (refined) frames, in order
+                m = placements[f][o.name].tolist()
                 rows.append((f, o.name, exchange.trajectory_row(m, w)))
         options = dict(options, name=label[:200])
-        exchange.write_job_inputs(partial, exchange.trajectory_csv(rows), options)
+        exchange.write_job_inputs(partial, exchange.trajectory_csv(rows), options, record)
         job_dir = exchange.commit_job(partial)
         partial = None
-        return job_dir
+        return job_dir, record
     finally:
         if partial is not None:
             exchange.abandon_job(partial)
@@ -249,7 +297,9 @@ def import_result(job_dir, scene=None, label=None):
         obj = bpy.data.objects.new(obj_name, mesh)
         coll.objects.link(obj)
     obj.show_transparent = True
-    for key, value in exchange.result_summary(report).items():
+    for key in [k for k in obj.keys() if k.startswith("sweptvol_")]:  # a re-import's old values
+        del obj[key]
+    for key, value in exchange.result_summary(report, exchange.read_sampling(job_dir)).items():
         obj[key] = value
     obj["sweptvol_job"] = job_dir
     obj["sweptvol_sources"] = label
@@ -425,7 +475,7 @@ class SWEPTVOL_OT_compute(bpy.types.Operator):
         else:
             options["resolution"] = int(settings.resolution)
         try:
-            job_dir = submit(context, objects, frames, options)
+            job_dir, record = submit(context, objects, frames, options, settings.halvings)
         except (ValueError, OSError, RuntimeError) as e:  # the user's data, the folder, export
             self.report({"ERROR"}, _one_line(e))
             return {"CANCELLED"}
@@ -442,7 +492,13 @@ class SWEPTVOL_OT_compute(bpy.types.Operator):
         except OSError as e:  # the binary cannot be run, or its log cannot be written
             ok, warning = False, (f"cannot start the daemon ({_one_line(e)}); the job waits in "
                                   "the folder")
-        self.report({"INFO"}, f"submitted {len(objects)} object(s), {len(frames)} frames: {job_dir}")
+        added = f" (+{record['rows_added']} sub-frames where the motion strays)" if record else ""
+        self.report({"INFO"}, f"submitted {len(objects)} object(s), {len(frames)} frames{added}: "
+                    f"{job_dir}")
+        stray = unresolved_warning(record)
+        if stray:
+            self.report({"WARNING"}, stray)
+            print(f"sweptvol: WARNING: {stray}")
         wait = self.wait if self.properties.is_property_set("wait") else bpy.app.background
         if not wait:
             if warning:

@@ -2,7 +2,7 @@
 
 import bpy
 
-from . import exchange, operators
+from . import exchange, operators, sampling
 
 
 class SweptvolSettings(bpy.types.PropertyGroup):
@@ -28,6 +28,11 @@ class SweptvolSettings(bpy.types.PropertyGroup):
                 "each sample to the next, with the bound stated for it"),
                ("discrete", "Samples only", "Cover only the sampled poses (the paper's method)")],
         default="screw")
+    halvings: bpy.props.IntProperty(
+        name="Halvings", description="Continuous motion: where Blender moves an object off the "
+        "screw motion between two samples (Bezier easing, overshoot, constraints), halve that "
+        "interval, at most this many times (0: keep the samples; the largest deviation is still "
+        "measured and recorded on the result)", default=sampling.DEFAULT_HALVINGS, min=0, max=12)
     resolution: bpy.props.IntProperty(
         name="Resolution", description="Voxels along the longest grid edge", default=256,
         min=8, max=4096)
@@ -64,6 +69,8 @@ class SWEPTVOL_PT_panel(bpy.types.Panel):
         col.prop(s, "accuracy", expand=True)
         col.prop(s, "tolerance" if s.accuracy == "TOLERANCE" else "resolution")
         layout.prop(s, "motion")
+        if s.motion == "screw":
+            layout.prop(s, "halvings")
         row = layout.row()
         row.scale_y = 1.4
         row.operator("sweptvol.compute", icon="MOD_SOLIDIFY")

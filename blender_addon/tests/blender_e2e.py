@@ -17,6 +17,10 @@ itself), and checks in Blender's world coordinates, at every sampled frame:
   2. every vertex of the imported mesh is within the reported bound of the posed objects;
   3. Blender's non-manifold selection (edit mode, select_non_manifold) on the imported mesh is
      empty, and so is bmesh's count of non-manifold edges and vertices.
+Continuous motion: a rod turning 90° per frame, sampled every frame, is inside the result at
+every 0.05 frame (and the discrete result fails that check); a block whose BACK-eased F-curve
+overshoots between two samples has its interval halved until the add-on follows it, is inside
+the result at every 0.01 frame, and with Halvings 0 is not (and the warning names it).
 Also: a deforming object is refused with its name and cause, the depth images load readable,
 a daemon error comes back as a Blender report, cancelling works, disabling the add-on stops the
 daemon it started, and with auto_start off the job is still submitted and the user told.
@@ -246,6 +250,143 @@ def non_manifold_check(obj):
                    f"and {len(bad_verts)} non-manifold vertices (e.g. at {where})")
 
 
+def set_interpolation(obj, kind):
+    """Set every keyframe of `obj`'s action to the interpolation `kind` (easing: automatic).
+    4.4+ keeps F-curves in the layered action's channel bag of the object's slot (5.0 drops
+    Action.fcurves); older Blenders have them on the action."""
+    anim = obj.animation_data
+    action = anim.action
+    if getattr(action, "layers", None):
+        curves = [fc for layer in action.layers for strip in layer.strips
+                  for bag in [strip.channelbag(anim.action_slot)] if bag is not None
+                  for fc in bag.fcurves]
+    else:
+        curves = list(action.fcurves)
+    check(curves, f"no F-curves found on {obj.name}")
+    for fc in curves:
+        for kp in fc.keyframe_points:
+            kp.interpolation = kind
+            kp.easing = "AUTO"
+        fc.update()
+    bpy.context.view_layer.update()
+
+
+def enclosure(scene, obj, swept, frames):
+    """(points checked, points outside, an outside point or None): `obj`'s vertices and face
+    centres posed at each frame, against the imported mesh `swept` (winding number < 0.5)."""
+    _, tris = world_mesh(swept)
+    pts = []
+    for f in frames:
+        scene.frame_set(int(math.floor(f)), subframe=f - math.floor(f))
+        verts, t = world_mesh(obj)
+        pts += [verts, t.mean(axis=1)]
+    scene.frame_set(1)
+    pts = np.concatenate(pts)
+    out = np.flatnonzero(winding_numbers(pts, tris) < 0.5)
+    return len(pts), len(out), (pts[out[0]].round(4).tolist() if len(out) else None)
+
+
+def sweep_one(obj, operators, coll):
+    """Compute `obj`'s swept volume (the panel's settings) and return (imported object, job)."""
+    select([obj])
+    check(bpy.ops.sweptvol.compute(wait=True, timeout=300) == {"FINISHED"}, f"compute {obj.name}")
+    job = operators.JOBS[-1]
+    check(job["state"] == "done", f"{obj.name}: job state {job['state']}")
+    swept = coll.objects.get(job["imported"])
+    check(swept is not None, f"{obj.name}: no imported object '{job['imported']}'")
+    return swept, job
+
+
+def continuous_motion(scene, settings, operators, exchange, coll):
+    """A part turning 90° per frame, sampled every frame: enclosed at every 0.05 frame with
+    continuous motion, not with discrete. A part whose F-curve overshoots between two samples
+    (BACK easing): the add-on halves the interval until it follows the curve, and the result
+    encloses it at every 0.01 frame; with no halving the same check fails."""
+    from mathutils import Matrix
+
+    # A rod from 0.1 to 1.1 along x, turning about the world z axis, linearly: Blender's motion
+    # is exactly the screw between samples, so nothing is halved.
+    bpy.ops.mesh.primitive_cube_add(size=1.0, location=(0, 0, 0))
+    spinner = bpy.context.active_object
+    spinner.name = "Spinner"
+    spinner.data.transform(Matrix.Translation((0.6, 0.0, 0.0)) @ Matrix.Diagonal((1.0, 0.2, 0.2, 1.0)))
+    for f, angle in ((1, 0), (2, 90), (3, 180)):
+        key(spinner, f, loc=(0, 0, 0), rot=(0, 0, angle))
+    set_interpolation(spinner, "LINEAR")
+    # A block pushed 2 units along x between frames 1 and 2 with BACK easing: it overshoots to
+    # about x = 2.2 between the samples and comes back.
+    bpy.ops.mesh.primitive_cube_add(size=0.4, location=(0, 3, 0))
+    block = bpy.context.active_object
+    block.name = "Overshoot"
+    key(block, 1, loc=(0, 3, 0))
+    key(block, 2, loc=(2, 3, 0))
+    set_interpolation(block, "BACK")
+
+    settings.use_scene_range = False
+    settings.accuracy, settings.resolution = "RESOLUTION", args.resolution
+    fine = [1.0 + 0.05 * k for k in range(41)]
+    settings.frame_start, settings.frame_end, settings.frame_step = 1.0, 3.0, 1.0
+    settings.motion, settings.halvings = "screw", 6
+    swept, job = sweep_one(spinner, operators, coll)
+    n, out, where = enclosure(scene, spinner, swept, fine)
+    log(f"continuous, 90°/frame: {n} points at {len(fine)} sub-frames, {out} outside; "
+        f"{swept['sweptvol_poses']} poses rendered, sub-frames added "
+        f"{swept.get('sweptvol_sampling_rows_added')}, deviation "
+        f"{swept.get('sweptvol_sampling_deviation')}")
+    check(out == 0, f"continuous motion: {out} of {n} points of the turning rod are outside the "
+          f"result, e.g. {where}")
+    check(swept["sweptvol_motion"] == "screw" and swept["sweptvol_poses"] > 3,
+          f"the sub-poses were not swept: {dict(swept.items())}")
+    check(swept["sweptvol_sampling_rows_added"] == 0
+          and swept["sweptvol_sampling_deviation"] < 1e-4,
+          "a linear turn is the screw: nothing should be halved "
+          f"({swept['sweptvol_sampling_rows_added']} added, {swept['sweptvol_sampling_deviation']})")
+
+    settings.motion = "discrete"
+    swept, job = sweep_one(spinner, operators, coll)
+    n, out, where = enclosure(scene, spinner, swept, fine)
+    log(f"discrete, 90°/frame: {out} of {n} points outside (as expected), e.g. {where}")
+    check(out > 0, "the discrete result encloses the motion between samples: the check above "
+          "could not fail")
+    check("sweptvol_sampling_deviation" not in swept.keys()
+          and not os.path.exists(os.path.join(job["dir"], exchange.SAMPLING)),
+          "discrete motion should not refine nor record a sampling")
+
+    settings.frame_start, settings.frame_end, settings.frame_step = 1.0, 2.0, 1.0
+    fine = [1.0 + 0.01 * k for k in range(101)]
+    settings.motion, settings.halvings = "screw", 6
+    swept, job = sweep_one(block, operators, coll)
+    record = exchange.read_sampling(job["dir"])
+    rows = [r for r in open(os.path.join(job["dir"], exchange.TRAJECTORY)) if r[:1].isdigit()]
+    n, out, where = enclosure(scene, block, swept, fine)
+    log(f"overshoot, halvings 6: {len(rows)} rows for 2 samples, deviation "
+        f"{record['worst_deviation']:.3g} (threshold {record['threshold']:.3g}), "
+        f"{out} of {n} points outside")
+    check(len(rows) > 2 and record["rows_added"] == len(rows) - 2,
+          f"the overshoot was not followed: {len(rows)} rows, record {record}")
+    check(record["unresolved"] == 0 and record["worst_deviation"] <= record["threshold"],
+          f"the refinement did not reach its threshold: {record}")
+    check(swept["sweptvol_sampling_deviation"] == record["worst_deviation"],
+          "the result does not carry the sampling deviation")
+    check(out == 0, f"{out} of {n} points of the overshooting block are outside, e.g. {where}")
+
+    settings.halvings = 0
+    swept, job = sweep_one(block, operators, coll)
+    record = exchange.read_sampling(job["dir"])
+    n, out, where = enclosure(scene, block, swept, fine)
+    warning = operators.unresolved_warning(record)
+    log(f"overshoot, no halving: deviation {record['worst_deviation']:.3g}, {out} of {n} points "
+        f"outside (as expected), warning: {warning}")
+    check(out > 0, "without halving the overshoot should leave the result: the check above "
+          "could not fail")
+    check(record["unresolved"] == 1 and "'Overshoot'" in warning and "Halvings" in warning,
+          f"the unfollowed overshoot is not stated: {record}, {warning!r}")
+    check(swept["sweptvol_sampling_unresolved"] == 1, "the result does not carry the unresolved count")
+    settings.halvings = 6
+    for o in (spinner, block):
+        bpy.data.objects.remove(o)
+
+
 def main(state):
     # ---------------------------------------------------------------------------------------------
     # Install and configure the add-on from the zip, in the fresh profile
@@ -458,6 +599,11 @@ def main(state):
         log("daemon error reported:", str(e).strip())
     check(operators.JOBS[-1]["state"] == "failed", f"state {operators.JOBS[-1]['state']}")
     settings.accuracy = "RESOLUTION"
+
+    # ---------------------------------------------------------------------------------------------
+    # 4c. Continuous motion: between the samples the imported result encloses the object
+
+    continuous_motion(scene, settings, operators, exchange, coll)
 
     # ---------------------------------------------------------------------------------------------
     # 5. Cancel: a big job submitted without waiting, cancelled, ends `cancelled`

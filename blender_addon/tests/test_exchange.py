@@ -261,6 +261,24 @@ def test_result_summary_from_report():
     assert s["sweptvol_hausdorff_bound"] == 0.08 and s["sweptvol_poses"] == 34
     assert s["sweptvol_triangles"] == 500 and s["sweptvol_resolution"] == [64, 40, 30]
     assert ex.result_summary(None) == {}
+    report["motion"] = {"model": "screw", "mu": 0.005, "poses_rendered": 40}
+    sampling = {"worst_deviation": 0.002, "threshold": 0.01, "finest_step": 1 / 64,
+                "rows_added": 3, "probes": 90, "unresolved": 0}
+    s = ex.result_summary(report, sampling)
+    assert s["sweptvol_motion"] == "screw" and s["sweptvol_sampling_deviation"] == 0.002
+    assert s["sweptvol_sampling_threshold"] == 0.01 and s["sweptvol_sampling_unresolved"] == 0
+    assert "sweptvol_sampling_deviation" not in ex.result_summary(report)
+
+
+def test_sampling_record_is_written_beside_the_inputs_and_read_back(tmp_path):
+    partial = ex.begin_job(str(tmp_path), "job")
+    record = {"worst_deviation": 0.001, "threshold": 0.01, "objects": []}
+    ex.write_job_inputs(partial, "frame,m00\n", {"resolution": 64}, record)
+    assert json.load(open(os.path.join(partial, ex.SAMPLING))) == record
+    assert ex.read_sampling(partial) == record
+    other = ex.begin_job(str(tmp_path), "other")
+    ex.write_job_inputs(other, "frame,m00\n", {"resolution": 64})
+    assert not os.path.exists(os.path.join(other, ex.SAMPLING)) and ex.read_sampling(other) is None
 
 
 # --- packaging ----------------------------------------------------------------------------------
