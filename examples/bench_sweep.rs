@@ -10,7 +10,10 @@
 //!   large rotations, like an assembly path.
 //!
 //! `--poses K` sweeps only the first K poses (the rate is what is measured); `--resolution`
-//! defaults to the paper's 1500. Prints one JSON line per run.
+//! defaults to the paper's 1500; `--motion screw` also sweeps the screw motion between
+//! consecutive poses (sub-poses, docs/design.md "Continuous motion"; default `discrete`). Prints
+//! one JSON line per run, with the motion report (poses rendered, largest steps per interval);
+//! `--plan` prints the sweep's size and motion report without sweeping.
 
 use std::path::Path;
 use std::time::Instant;
@@ -100,6 +103,11 @@ fn main() -> anyhow::Result<()> {
         other => anyhow::bail!("unknown workload {other}: vibrating or assembly"),
     };
     let count: usize = flag("--poses").map_or(Ok(full_poses), |s| s.parse())?;
+    let motion = match flag("--motion").as_deref() {
+        Some("screw") => Motion::Screw,
+        None | Some("discrete") => Motion::Discrete,
+        Some(other) => anyhow::bail!("unknown motion {other}: screw or discrete"),
+    };
 
     let dragon = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/dragon-11k.glb");
     let mut g = gltf_in::read_generator(&dragon)?;
@@ -121,8 +129,23 @@ fn main() -> anyhow::Result<()> {
         Path::new("bench"),
         Accuracy::Resolution(resolution),
         Overrides::default(),
-        Motion::Discrete,
+        motion,
     )?;
+    if args.iter().any(|a| a == "--plan") {
+        println!(
+            "{}",
+            serde_json::json!({
+                "workload": workload,
+                "triangles": input.triangles.len(),
+                "poses": count,
+                "motion": input.motion,
+                "resolution": input.grid.resolution(),
+                "voxel_size": input.grid.h,
+                "posed_triangles": input.posed_triangles(),
+            })
+        );
+        return Ok(());
+    }
     let backend = Backend::acquire(backend)?;
     let t = Instant::now();
     let images = backend.sweep(&input, &Silent)?;
@@ -134,6 +157,7 @@ fn main() -> anyhow::Result<()> {
             "backend": backend.describe(),
             "triangles": input.triangles.len(),
             "poses": count,
+            "motion": input.motion,
             "resolution": input.grid.resolution(),
             "dims": input.grid.dims,
             "posed_triangles": input.posed_triangles(),
