@@ -580,3 +580,87 @@ fn regression_slightly_tilted_pillar_on_both_backends() {
         check_axes_against_oracle(&input, &gpu.sweep(&input, &Silent).unwrap(), &tris, &[2]);
     }
 }
+
+/// The continuous motion's sub-poses on the GPU: made on demand and uploaded one dispatch at a
+/// time, they render exactly as the CPU twin renders them (within ρ, as every GPU-vs-CPU test
+/// here). Two parts: one turns back and forth through 150° about the world's z axis a unit
+/// away while rising, so that no two of its poses coincide (over 65,535 poses: more than one
+/// dispatch and upload, each of which must send its own poses), the other slides six units in
+/// two screw steps, turning about its own axis.
+#[test]
+fn gpu_matches_cpu_twin_on_sub_poses() {
+    let Some(gpu) = test_gpu() else { return };
+    let mut rng = Rng::with_seed(16);
+    let mut g = tetrahedron(&mut rng, 0.15, [1.0, 0.0, 0.0]);
+    let mut slider = tetrahedron(&mut rng, 0.2, [0.0, 0.0, 0.0]).parts.remove(0);
+    slider.node_name = Some("slider".into());
+    slider.node_index = 1;
+    g.parts.push(slider);
+    let turns = 1500;
+    let mut rows: Vec<(&str, DMat4)> = (0..turns)
+        .map(|k| {
+            let side = if k % 2 == 0 { -1.0 } else { 1.0 };
+            let m = DMat4::from_translation(DVec3::new(0.0, 0.0, 0.002 * k as f64))
+                * DMat4::from_rotation_z(side * 75f64.to_radians());
+            ("part", m)
+        })
+        .collect();
+    for k in 0..3 {
+        let m = DMat4::from_translation(DVec3::new(-3.0 + 3.0 * k as f64, 2.5, 0.0))
+            * DMat4::from_rotation_z(1.2 * k as f64);
+        rows.push(("slider", m));
+    }
+    let traj = Trajectory {
+        poses: rows
+            .iter()
+            .enumerate()
+            .map(|(i, (node, m))| Pose {
+                line: i as u64 + 2,
+                frame: None,
+                node: Some(node.to_string()),
+                matrix: *m,
+            })
+            .collect(),
+        has_node_column: true,
+    };
+    let input = posed::build(
+        &g,
+        Path::new("t.glb"),
+        &traj,
+        Path::new("t.csv"),
+        Accuracy::Resolution(64),
+        Overrides::default(),
+        Motion::Screw,
+    )
+    .unwrap();
+    let spinner = &input.parts[0];
+    assert!(
+        input.motion.poses_rendered > 20 * rows.len() as u64,
+        "{} poses for {} rows",
+        input.motion.poses_rendered,
+        rows.len()
+    );
+    assert!(
+        spinner.pose_count > 65_535 && input.parts[1].pose_count > 100,
+        "{} and {} poses: the case should take several dispatches",
+        spinner.pose_count,
+        input.parts[1].pose_count
+    );
+    let c = cpu::sweep(&input, &Silent).unwrap();
+    let gi = gpu.sweep(&input, &Silent).unwrap();
+    let hits = assert_same(&gi, &c, input.rounding, input.radius as f64);
+    assert!(hits > 1000, "only {hits} pixels compared");
+    // Half way between two rows the spinner stands at angle 0, far from every row: only
+    // sub-poses cover the ray through its centroid there.
+    let centroid = g.parts[0]
+        .positions
+        .iter()
+        .fold(DVec3::ZERO, |s, p| s + p.as_dvec3())
+        / 4.0;
+    let p = input.grid.to_grid(centroid);
+    let (lo, hi) = pixel(&gi, 2, p[COLUMN_AXIS[2]], p[ROW_AXIS[2]]);
+    assert!(
+        lo <= hi,
+        "the ray through the turn's middle is empty on the GPU"
+    );
+}

@@ -9,7 +9,9 @@
 //!   250 B per start triangle at the peak (measured: 1.95 GB for 7.5e6 triangles at n = 1024,
 //!   4.04 GB for 16.1e6 at n = 1500), 30 B more with --keep-start-mesh (its GLB bytes are held
 //!   until the write);
-//! - BASE_BYTES for the program, its threads and the inputs.
+//! - BASE_BYTES for the program, its threads and the inputs. Poses do not count: the sweep's
+//!   input holds the rows and the motion's intervals, and the sub-poses between them are made a
+//!   batch at a time (`input::poses`), however many the motion needs.
 //!
 //! So about 716·P bytes, growing with n²: 4.1 GB estimated for the bunny at n = 1500, where
 //! 4.04 GB was measured (docs/benchmarks.md). An estimate, not a bound: a shape with more

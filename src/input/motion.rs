@@ -45,8 +45,11 @@ pub const MU_VOXELS: f64 = 0.25;
 /// A relative rotation this close to a half turn (radians) between two rows is refused: which
 /// way the part turned is not determined by the two poses.
 const MAX_TURN: f64 = std::f64::consts::PI - 1.75e-3; // 179.9°
-/// Sub-poses per interval at most, and in all (each is 48 bytes in the sweep's input).
-const MAX_SUB_POSES: u64 = 20_000_000;
+/// Poses (rows and sub-poses) in all at most. Not a memory limit: the sweep makes sub-poses on
+/// the fly, a batch at a time (`input::poses`). It is the range of the sweep's pose indices (u32
+/// in `PartRange` and the GPU's parameters); long before it the sweep's time is the limit (each
+/// pose renders every triangle of its part), which the reported posed-triangle count states.
+const MAX_POSES: u64 = u32::MAX as u64;
 /// Relative accuracy of the f64 screw evaluation: a generous multiple of f64's unit roundoff
 /// times the few dozen operations of `Interval::at` (exp map, two products). The path bound
 /// budgets this error times the largest coordinate, so sub-poses stay within μ.
@@ -346,42 +349,32 @@ pub struct MotionPlace {
     pub lines: [u64; 2],
 }
 
-/// Each part's poses with the sub-poses of its intervals in between (every point of the motion
-/// within `mu` of one), in order; the report of it. Parts without intervals keep their poses.
-pub fn with_sub_poses(
+/// The steps k of every interval, in order, that leave every point of the motion within `mu`
+/// of a sub-pose (k - 1 sub-poses between its rows), and the report of the poses they make:
+/// each part's rows with the sub-poses of its intervals in between. Nothing is evaluated here;
+/// `input::poses` makes the poses when the sweep asks for them. Refused: more poses in all
+/// than the sweep can index.
+pub fn sub_pose_steps(
     generator: &Generator,
     assigned: &[PartPoses],
     intervals: &[Interval],
     mu: f64,
-) -> Result<(Vec<PartPoses>, MotionReport), OptionError> {
+) -> Result<(Vec<u64>, MotionReport), OptionError> {
     let mut report = MotionReport {
         model: Motion::Screw.name(),
         mu,
         intervals: intervals.len() as u64,
         ..Default::default()
     };
-    let total: u64 = intervals.iter().map(|iv| iv.steps(mu)).sum();
-    if total > MAX_SUB_POSES {
-        return Err(OptionError::new(
-            OptionKey::Resolution,
-            format!("the continuous motion needs {total} sub-poses at this voxel size, more than {MAX_SUB_POSES}; use a coarser $resolution or a larger $tolerance, add rows to the trajectory, or sweep only the listed poses (--motion discrete)"),
-        ));
-    }
-    let mut out = Vec::with_capacity(assigned.len());
-    let mut next = intervals.iter().peekable();
-    for (part, poses, is_static) in assigned {
-        let mut expanded = Vec::with_capacity(poses.len());
-        for (j, pose) in poses.iter().enumerate() {
-            expanded.push(*pose);
-            if j + 1 == poses.len() {
-                break;
-            }
-            let iv = next.next().expect("one interval per consecutive pair");
+    let steps: Vec<u64> = intervals.iter().map(|iv| iv.steps(mu)).collect();
+    let mut next = intervals.iter().zip(&steps).peekable();
+    for (part, poses, _) in assigned {
+        // The part's rows, and k - 1 sub-poses for each interval between two of them.
+        let mut count = poses.len() as u64;
+        for _ in 1..poses.len() {
+            let (iv, &k) = next.next().expect("one interval per consecutive pair");
             debug_assert_eq!(iv.part, *part);
-            let k = iv.steps(mu);
-            for step in 1..k {
-                expanded.push((iv.at(step as f64 / k as f64), pose.1));
-            }
+            count = count.saturating_add(k - 1);
             if k > report.max_steps {
                 report.max_steps = k;
                 report.max_steps_at = Some(MotionPlace {
@@ -394,10 +387,16 @@ pub fn with_sub_poses(
                 report.max_turn_degrees = iv.turn.to_degrees();
             }
         }
-        report.poses_rendered += expanded.len() as u64;
-        out.push((*part, expanded, *is_static));
+        report.poses_rendered = report.poses_rendered.saturating_add(count);
     }
-    Ok((out, report))
+    debug_assert!(next.peek().is_none(), "every interval belongs to a part");
+    if report.poses_rendered > MAX_POSES {
+        return Err(OptionError::new(
+            OptionKey::Resolution,
+            format!("the continuous motion needs {} poses at this voxel size, more than the sweep can count ({MAX_POSES}; each renders every triangle of its part); use a coarser $resolution or a larger $tolerance, add rows to the trajectory, or sweep only the listed poses (--motion discrete)", report.poses_rendered),
+        ));
+    }
+    Ok((steps, report))
 }
 
 /// The report of a discrete sweep of `poses` poses.

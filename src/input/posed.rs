@@ -11,6 +11,7 @@ use crate::error::{num, InputError, OptionError, OptionKey};
 use crate::input::grid::{fit_grid, Accuracy, Grid, Overrides, Params};
 use crate::input::model::{Generator, Trajectory};
 use crate::input::motion::{self, Motion, MotionReport, MU_VOXELS};
+use crate::input::poses::PoseSource;
 
 /// Unit roundoff of f32.
 const U32: f64 = f32::EPSILON as f64 / 2.0;
@@ -42,7 +43,8 @@ pub struct PartRange {
     /// First triangle in [`SweepInput::triangles`], and how many.
     pub tri_start: u32,
     pub tri_count: u32,
-    /// First pose in [`SweepInput::poses`], and how many.
+    /// First pose in the order of all parts' poses, and how many; [`SweepInput::poses`] makes
+    /// them by part and index within the part (0..pose_count).
     pub pose_start: u32,
     pub pose_count: u32,
     /// True when no trajectory row names this part: it is included once where it stands.
@@ -64,8 +66,9 @@ pub struct SweepInput {
     pub motion: MotionReport,
     /// Triangles as 9 floats (three local vertices), all parts concatenated.
     pub triangles: Vec<[f32; 9]>,
-    /// Row-major 3x4 matrices mapping a part's local frame to grid units.
-    pub poses: Vec<[f32; 12]>,
+    /// Every part's poses as row-major 3x4 f32 matrices mapping its local frame to grid units,
+    /// made on demand a batch at a time (the sub-poses of a motion are never all stored).
+    pub poses: PoseSource,
     pub parts: Vec<PartRange>,
 }
 
@@ -256,48 +259,48 @@ pub fn build(
     if motion_box.is_some_and(|m| !finite(m)) {
         anyhow::bail!("the continuous motion's bounding box overflows f64: move the part nearer the world origin, or pass --motion discrete");
     }
-    let (assigned, mut motion_report) = if intervals.is_empty() {
+    let (steps, mut motion_report) = if intervals.is_empty() {
         let poses = assigned.iter().map(|(_, p, _)| p.len() as u64).sum();
-        (assigned, motion::discrete_report(poses))
+        (Vec::new(), motion::discrete_report(poses))
     } else {
-        motion::with_sub_poses(generator, &assigned, &intervals, mu_voxels * grid.h)?
+        motion::sub_pose_steps(generator, &assigned, &intervals, mu_voxels * grid.h)?
     };
     motion_report.model = motion.name();
     let to_grid =
         DMat4::from_scale(DVec3::splat(1.0 / grid.h)) * DMat4::from_translation(-grid.origin());
 
     let mut triangles = Vec::with_capacity(generator.triangle_count());
-    let mut poses = Vec::new();
     let mut parts = Vec::new();
-    let mut pose_s_max: f64 = 0.0;
-    for (i, part_poses, is_static) in &assigned {
-        let part = &generator.parts[*i];
+    // Each part's rows and the intervals between them with their steps (none when discrete).
+    let mut motions = Vec::with_capacity(assigned.len());
+    let mut next = intervals.into_iter().zip(steps);
+    let mut pose_start = 0u32;
+    // Largest |coordinate| of each part's vertices, per axis (for the pose bound).
+    let mut vmax = Vec::with_capacity(assigned.len());
+    for (i, part_poses, is_static) in assigned {
+        let part = &generator.parts[i];
         let tri_start = triangles.len() as u32;
         for t in &part.triangles {
             let v = |k: usize| part.positions[t[k] as usize];
             let [a, b, c]: [Vec3; 3] = [v(0), v(1), v(2)];
             triangles.push([a.x, a.y, a.z, b.x, b.y, b.z, c.x, c.y, c.z]);
         }
-        // Largest |coordinate| of the part's vertices, per axis (for the pose bound).
-        let vmax = part
-            .positions
-            .iter()
-            .fold(DVec3::ZERO, |m, v| m.max(v.as_dvec3().abs()));
-        let pose_start = poses.len() as u32;
-        for (m, _) in part_poses {
-            let a = to_grid * *m;
-            let rows = a.transpose().to_cols_array(); // row-major 4x4
-            for r in 0..3 {
-                let s: f64 = (0..3).map(|j| rows[4 * r + j].abs() * vmax[j]).sum::<f64>()
-                    + rows[4 * r + 3].abs();
-                pose_s_max = pose_s_max.max(s);
-            }
-            let mut m12 = [0f32; 12];
-            for (k, x) in m12.iter_mut().enumerate() {
-                *x = rows[k] as f32;
-            }
-            poses.push(m12);
-        }
+        vmax.push(
+            part.positions
+                .iter()
+                .fold(DVec3::ZERO, |m, v| m.max(v.as_dvec3().abs())),
+        );
+        let rows: Vec<DMat4> = part_poses.into_iter().map(|(m, _)| m).collect();
+        let part_intervals: Vec<_> = if motion_report.intervals == 0 {
+            Vec::new()
+        } else {
+            next.by_ref().take(rows.len() - 1).collect()
+        };
+        let pose_count: u64 =
+            rows.len() as u64 + part_intervals.iter().map(|(_, k)| k - 1).sum::<u64>();
+        // u32 by construction: `sub_pose_steps` refuses more poses in all.
+        let pose_count = u32::try_from(pose_count).expect("pose count checked");
+        motions.push((rows, part_intervals));
         parts.push(PartRange {
             name: part
                 .node_name
@@ -306,10 +309,28 @@ pub fn build(
             tri_start,
             tri_count: triangles.len() as u32 - tri_start,
             pose_start,
-            pose_count: poses.len() as u32 - pose_start,
-            is_static: *is_static,
+            pose_count,
+            is_static,
         });
+        pose_start += pose_count;
     }
+    let poses = PoseSource::new(to_grid, motions);
+    // The pose bound S (see [`rounding_term`]) over every pose, sub-poses included, each as the
+    // sweep will render it: one streamed pass, nothing stored.
+    let pose_s_max = vmax
+        .iter()
+        .enumerate()
+        .map(|(index, vmax)| {
+            poses.max_over(index, |rows| {
+                (0..3)
+                    .map(|r| {
+                        (0..3).map(|j| rows[4 * r + j].abs() * vmax[j]).sum::<f64>()
+                            + rows[4 * r + 3].abs()
+                    })
+                    .fold(0.0, f64::max)
+            })
+        })
+        .fold(0.0, f64::max);
     let delta_voxels = params.delta / grid.h + mu_voxels;
     let rounding = rounding_term(pose_s_max, &grid, delta_voxels);
     if rounding > MAX_ROUNDING_VOXELS {

@@ -26,24 +26,27 @@ pub fn sweep(input: &SweepInput, observer: &dyn Observer) -> Result<DepthImages,
     let dims = input.grid.dims;
     let total = input.posed_triangles();
     let mut done = 0u64;
-    for part in &input.parts {
+    // One batch of pose matrices at a time, made on demand: the sub-poses of a motion are never
+    // all in memory.
+    let mut pose_batch = Vec::new();
+    for (index, part) in input.parts.iter().enumerate() {
         let tris =
             &input.triangles[part.tri_start as usize..(part.tri_start + part.tri_count) as usize];
-        let poses =
-            &input.poses[part.pose_start as usize..(part.pose_start + part.pose_count) as usize];
+        let count = part.pose_count as u64;
         // Batches of poses sized so that each takes about BATCH_SECONDS: progress and
         // cancellation stay prompt whatever the triangles cost. Starts at ~64k posed triangles
         // and adapts to the measured rate. The result does not depend on batching (atomic
         // min/max).
         let mut batch = (65_536 / tris.len().max(1)).clamp(1, 4096);
-        let mut rest = poses;
-        while !rest.is_empty() {
+        let mut next = 0u64;
+        while next < count {
             if observer.cancelled() {
                 return Err(Cancelled);
             }
-            let (pose_batch, tail) = rest.split_at(batch.min(rest.len()));
-            rest = tail;
+            let end = count.min(next + batch as u64);
             let t0 = Instant::now();
+            input.poses.fill(index, next..end, &mut pose_batch);
+            next = end;
             pose_batch
                 .par_iter()
                 .flat_map(|m| tris.par_chunks(TRIANGLES_PER_TASK).map(move |c| (m, c)))

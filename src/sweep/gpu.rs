@@ -18,6 +18,8 @@ const MAX_WORKGROUPS: u32 = 65535;
 /// Posed triangles per dispatch: large enough to fill a big GPU, small enough that progress and
 /// cancellation come several times a second on lavapipe.
 const POSED_TRIANGLES_PER_DISPATCH: u64 = 1 << 23;
+/// One pose: a row-major 3x4 f32 matrix.
+const POSE_BYTES: u64 = 48;
 
 /// Must match `Params` in shaders/sweep.wgsl.
 #[repr(C)]
@@ -141,7 +143,17 @@ impl Gpu {
             .map(|e| 4 * e.len() as u64)
             .max()
             .unwrap_or(0);
-        let input_bytes = (36 * input.triangles.len()).max(48 * input.poses.len()) as u64;
+        // Poses go up one dispatch's worth at a time into a buffer of at most MAX_WORKGROUPS
+        // poses (3 MiB): the sub-poses of a motion are made on demand, never all stored.
+        let pose_capacity = input
+            .parts
+            .iter()
+            .map(|p| p.pose_count)
+            .max()
+            .unwrap_or(1)
+            .clamp(1, MAX_WORKGROUPS);
+        let pose_bytes = POSE_BYTES * pose_capacity as u64;
+        let input_bytes = (36 * input.triangles.len() as u64).max(pose_bytes);
         let binding_limit = limits
             .max_storage_buffer_binding_size
             .min(limits.max_buffer_size);
@@ -158,11 +170,13 @@ impl Gpu {
             bytemuck::cast_slice(&input.triangles),
             wgpu::BufferUsages::empty(),
         );
-        let poses = self.storage(
-            "poses",
-            bytemuck::cast_slice(&input.poses),
-            wgpu::BufferUsages::empty(),
-        );
+        let poses = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("poses"),
+            size: pose_bytes,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut pose_batch = Vec::with_capacity(pose_capacity as usize);
         let images: Vec<wgpu::Buffer> = encoded
             .iter()
             .enumerate()
@@ -198,7 +212,7 @@ impl Gpu {
         let done = Arc::new(AtomicU64::new(0));
         let mut previous: Option<wgpu::SubmissionIndex> = None;
         let max_tris_per_dispatch = MAX_WORKGROUPS * WORKGROUP_SIZE;
-        for part in &input.parts {
+        for (index, part) in input.parts.iter().enumerate() {
             let mut tri_offset = 0;
             while tri_offset < part.tri_count {
                 let tri_count = (part.tri_count - tri_offset).min(max_tris_per_dispatch);
@@ -211,10 +225,19 @@ impl Gpu {
                         return Err(Cancelled.into());
                     }
                     let pose_count = (part.pose_count - pose_offset).min(batch);
+                    // This dispatch's poses, made while the one before runs. The queue writes
+                    // them after the work already submitted (which reads the buffer's old
+                    // contents) and before this dispatch, like the parameters.
+                    let first = pose_offset as u64;
+                    input
+                        .poses
+                        .fill(index, first..first + pose_count as u64, &mut pose_batch);
+                    self.queue
+                        .write_buffer(&poses, 0, bytemuck::cast_slice(&pose_batch));
                     let p = GpuParams {
                         tri_start: part.tri_start + tri_offset,
                         tri_count,
-                        pose_start: part.pose_start + pose_offset,
+                        pose_start: 0,
                         pose_count,
                         dims: input.grid.dims,
                         radius: input.radius,
