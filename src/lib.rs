@@ -9,7 +9,9 @@
 //!   (wgpu) or its CPU twin (paper section 4); [`sweep::backend`] chooses which.
 //! - [`depth`]: the six images and their encoding, the contract between the sweep and the mesh
 //!   stage (it imports nothing from `sweep`).
-//! - [`mesh`]: voxels classified by condition ⋆ ([`mesh::classify`]), pinches joined so the
+//! - [`voxels`]: one bit per voxel, for the offset's reach ([`sweep::reach`]) and the flood.
+//! - [`mesh`]: voxels classified by condition ⋆ ([`mesh::classify`]) less what a flood from
+//!   outside reaches ([`mesh::flood`]), pinches joined so the
 //!   boundary is a 2-manifold ([`mesh::manifold`]), the voxel boundary extracted
 //!   ([`mesh::extract`]).
 //! - [`simplify`]: edge collapses inside the tolerance volume (paper section 5): quadric costs,
@@ -28,4 +30,5 @@ pub mod pipeline;
 pub mod simplify;
 pub mod sweep;
 pub mod verify;
+pub mod voxels;
 pub mod watch;

@@ -8,9 +8,39 @@
 //!
 //! Every outside voxel is joined to the grid's border by a straight row of outside voxels (the
 //! axis whose condition it fails), so the inside set has no enclosed voids: concavities that
-//! no axis sees are filled, and no inner shells arise.
+//! no axis sees are filled, and no inner shells arise. [`Classifier::carve`] takes out what a
+//! flood from outside reaches without crossing the rendered offset (`mesh::flood`): then
+//! concavities are kept open wherever the flood gets in, seen by an axis or not.
+
+use serde::{Deserialize, Serialize};
 
 use crate::depth::{DepthImage, DepthImages};
+use crate::voxels::VoxelBits;
+
+/// How voxels are classified.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Method {
+    /// `flood` when every part of the generator is closed, else `axes` (the default).
+    #[default]
+    Auto,
+    /// Condition ⋆ less the flood from outside (`mesh::flood`): no blind spots. On an open part
+    /// the flood may enter through a hole wider than the offset and hollow the result out (it
+    /// still holds every point the part's surface touches).
+    Flood,
+    /// Condition ⋆ alone (the paper's): concavities no axis looks into are filled.
+    Axes,
+}
+
+impl Method {
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Auto => "auto",
+            Method::Flood => "flood",
+            Method::Axes => "axes",
+        }
+    }
+}
 
 /// Inclusive ranges [lo, hi] of voxel indices along each pixel's ray (lo > hi: empty).
 struct RangeImage {
@@ -92,6 +122,8 @@ pub struct Classifier {
     x: RangeImage,
     y: RangeImage,
     z: RangeImage,
+    /// Voxels taken out of condition ⋆: reached by the flood from outside (`mesh::flood`).
+    carved: Option<VoxelBits>,
 }
 
 impl Classifier {
@@ -102,7 +134,21 @@ impl Classifier {
             x: RangeImage::new(&images.images[0]),
             y: RangeImage::new(&images.images[1]),
             z: RangeImage::new(&images.images[2]),
+            carved: None,
         }
+    }
+
+    /// Condition ⋆ less the voxels of `flooded` (same grid): the classification with no blind
+    /// spots, where the flood from outside reaches every concavity the generator leaves open.
+    pub fn carve(mut self, flooded: VoxelBits) -> Self {
+        assert_eq!(flooded.dims, self.dims, "the flood is of another grid");
+        self.carved = Some(flooded);
+        self
+    }
+
+    /// Whether the classification is carved by a flood (no blind spots).
+    pub fn is_carved(&self) -> bool {
+        self.carved.is_some()
     }
 
     /// Condition ⋆ for voxel (i, j, k); false outside the grid.
@@ -111,8 +157,9 @@ impl Classifier {
         if i < 0 || j < 0 || k < 0 || i as usize >= nx || j as usize >= ny || k as usize >= nz {
             return false;
         }
+        let carved = self.carved.as_ref().is_some_and(|c| c.get(i, j, k));
         let (i, j, k) = (i as usize, j as usize, k as usize);
-        self.x.contains(k, j, i) && self.y.contains(i, k, j) && self.z.contains(i, j, k)
+        self.x.contains(k, j, i) && self.y.contains(i, k, j) && self.z.contains(i, j, k) && !carved
     }
 }
 
@@ -148,6 +195,16 @@ impl Classifier {
                         && within(rz[5 * di + dj], dk as i32)
                     {
                         m |= 1 << (25 * dk + 5 * dj + di);
+                    }
+                }
+            }
+        }
+        if let Some(c) = &self.carved {
+            for bit in 0..125 {
+                if m >> bit & 1 == 1 {
+                    let (di, dj, dk) = (bit % 5, bit / 5 % 5, bit / 25);
+                    if c.get(i0 + di, j0 + dj, k0 + dk) {
+                        m &= !(1 << bit);
                     }
                 }
             }
@@ -304,6 +361,8 @@ pub(crate) mod test_support {
 #[cfg(test)]
 mod tests {
     use super::test_support::from_ranges;
+    use super::Classifier;
+    use crate::voxels::VoxelBits;
 
     /// `block5` agrees with `inside` voxel by voxel, on random ranges that run past the grid's
     /// ends and blocks that hang over every face and corner of it.
@@ -325,6 +384,42 @@ mod tests {
         let cls = from_ranges(dims, |axis, u, v| {
             ranges[64 * axis + 8 * (u as usize) + v as usize]
         });
+        let before = blocks_agree(&cls);
+        assert!(
+            before.0 > 3000 && before.1 > 3000,
+            "{} inside, {} outside",
+            before.0,
+            before.1
+        );
+        // Carved by a random flood: the blocks leave out exactly the carved voxels too.
+        let mut flooded = VoxelBits::new([7, 6, 5]);
+        let mut rng = fastrand::Rng::with_seed(5);
+        for k in 0..5 {
+            for j in 0..6 {
+                for i in 0..7 {
+                    if rng.bool() {
+                        flooded.set(i, j, k);
+                    }
+                }
+            }
+        }
+        let carved = cls.carve(flooded.clone());
+        assert!(carved.is_carved());
+        let after = blocks_agree(&carved);
+        assert!(after.0 < before.0 && after.0 > 0, "{after:?} vs {before:?}");
+        for k in 0..5 {
+            for j in 0..6 {
+                for i in 0..7 {
+                    if flooded.get(i, j, k) {
+                        assert!(!carved.inside(i, j, k));
+                    }
+                }
+            }
+        }
+    }
+
+    /// Checks `block5` against `inside` on blocks over and around the grid; (inside, outside).
+    fn blocks_agree(cls: &Classifier) -> (usize, usize) {
         let (mut inside, mut outside) = (0, 0);
         for k0 in -5..7 {
             for j0 in -5..8 {
@@ -343,9 +438,6 @@ mod tests {
                 }
             }
         }
-        assert!(
-            inside > 3000 && outside > 3000,
-            "{inside} inside, {outside} outside"
-        );
+        (inside, outside)
     }
 }

@@ -1,11 +1,13 @@
 //! The mesh stage (paper sections 4 and 5): the six depth images become a closed 2-manifold
-//! triangle mesh, the simplifier's start. [`classify`] decides each voxel by condition ⋆,
+//! triangle mesh, the simplifier's start. [`classify`] decides each voxel by condition ⋆ (less
+//! what [`flood`] reaches from outside, where the generator is closed),
 //! [`manifold`] adds the voxels that join pinches, [`extract`] writes the boundary between inside
 //! and outside voxels. [`Mesh`] is the triangle mesh every later stage passes on, in grid units,
 //! with the checks every stage's output must pass.
 
 pub mod classify;
 pub mod extract;
+pub mod flood;
 pub mod manifold;
 
 use std::collections::HashMap;

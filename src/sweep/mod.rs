@@ -6,6 +6,7 @@ pub mod backend;
 pub mod cpu;
 pub mod gpu;
 pub mod offset;
+pub mod reach;
 
 use crate::depth::{EMPTY_MAX, EMPTY_MIN, SLOTS};
 use crate::input::posed::SweepInput;
