@@ -161,6 +161,7 @@ fn main() -> anyhow::Result<()> {
             check_memory: true,
             // verify certifies the listed poses: the benchmark's run renders just those.
             motion: Motion::Discrete,
+            classify: Default::default(),
         };
         let job = pipeline::prepare(&opts)?;
         let report = pipeline::execute(&job, &Backend::acquire(BackendChoice::Cpu)?, &Silent)?;

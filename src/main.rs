@@ -13,6 +13,7 @@ use sweptvol::error::{self, OptionError, OptionKey};
 use sweptvol::input::grid::{Accuracy, Overrides};
 use sweptvol::input::motion::Motion;
 use sweptvol::io::mesh_formats::MeshFormat;
+use sweptvol::mesh::classify::Method;
 use sweptvol::pipeline::{self, RunOptions};
 use sweptvol::sweep::backend::{Backend, BackendChoice};
 use sweptvol::sweep::Observer;
@@ -97,6 +98,26 @@ impl From<MotionArg> for Motion {
         match m {
             MotionArg::Screw => Motion::Screw,
             MotionArg::Discrete => Motion::Discrete,
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+enum ClassifyArg {
+    /// `flood` where every part of the generator is closed, else `axes`.
+    Auto,
+    /// Condition ⋆ less the flood from outside: no blind spots.
+    Flood,
+    /// Condition ⋆ alone (the paper's).
+    Axes,
+}
+
+impl From<ClassifyArg> for Method {
+    fn from(m: ClassifyArg) -> Self {
+        match m {
+            ClassifyArg::Auto => Method::Auto,
+            ClassifyArg::Flood => Method::Flood,
+            ClassifyArg::Axes => Method::Axes,
         }
     }
 }
@@ -253,6 +274,12 @@ struct RunArgs {
     /// row to the next, covered with a derived bound; or `discrete`, only the listed poses.
     #[arg(long, value_enum, default_value = "screw")]
     motion: MotionArg,
+    /// How voxels are classified: `auto` floods from outside where every part is closed, else
+    /// `axes`; `flood`: condition ⋆ less what a flood from outside reaches without crossing the
+    /// offset (no concavity filled; an open part may come out as a shell around its surface);
+    /// `axes`: condition ⋆ alone (the paper's; concavities no axis sees are filled).
+    #[arg(long, value_enum, default_value = "auto")]
+    classify: ClassifyArg,
     /// Replace existing outputs.
     #[arg(long)]
     overwrite: bool,
@@ -297,6 +324,7 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
         also: args.also.iter().map(|&f| f.into()).collect(),
         check_memory: !args.no_memory_check,
         motion: args.motion.into(),
+        classify: args.classify.into(),
     };
     // Inputs first: a bad file is reported before any GPU start-up.
     let job = pipeline::prepare(&opts)?;

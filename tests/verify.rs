@@ -380,9 +380,11 @@ fn analytic_box_hull_clearance_and_deviation() {
 }
 
 /// A cup (floor and four walls) under a wider lid with a gap between: the cup's inside is
-/// hidden from all six axis directions, so `run` fills it, and the filled top lies farther than
-/// `hausdorff_bound` from the part (its scope excludes hidden pockets). verify finds that place
-/// and proves every piece beyond the bound hidden.
+/// hidden from all six axis directions, so `run --classify axes` fills it, and the filled top
+/// lies farther than `hausdorff_bound` from the part (its scope excludes hidden pockets). verify
+/// finds that place and proves every piece beyond the bound hidden. The default classification
+/// (the part is closed, so `auto` floods from outside) keeps the cup open: verify passes its
+/// bound with no scope.
 #[test]
 fn a_filled_pocket_exceeds_the_bound_only_where_hidden_from_every_axis() {
     let dir = tempfile::tempdir().unwrap();
@@ -418,6 +420,8 @@ fn a_filled_pocket_exceeds_the_bound_only_where_hidden_from_every_axis() {
         "60",
         "--backend",
         "cpu",
+        "--classify",
+        "axes",
         "--quiet",
     ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
@@ -459,6 +463,28 @@ fn a_filled_pocket_exceeds_the_bound_only_where_hidden_from_every_axis() {
     );
     assert_eq!(code, 0, "{}", failures(&r));
     assert_eq!(r["deviation"]["scope"], "axis-visible");
+
+    // The default classification floods the cup open: its bound holds everywhere.
+    let flooded = dir.path().join("flooded");
+    let args = run_args(&g, &csv, &flooded, &["--resolution", "60"]);
+    let o = sweptvol(&args);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let report: Value =
+        serde_json::from_slice(&fs::read(flooded.join("cup.report.json")).unwrap()).unwrap();
+    assert_eq!(
+        report["classification"]["method"], "flood",
+        "{}",
+        report["classification"]
+    );
+    assert!(report["mesh"]["hausdorff_bound_scope"]
+        .as_str()
+        .unwrap()
+        .starts_with("everywhere"));
+    let b = format!("{}", report["mesh"]["hausdorff_bound"].as_f64().unwrap());
+    let m = flooded.join("cup.swept.glb");
+    let (code, r) = verify_json(&g, &csv, &m, &["--spacing", &sp, "--bound", &b]);
+    assert_eq!(code, 0, "{}", failures(&r));
+    assert_eq!(r["deviation"]["scope"], "everywhere");
 }
 
 #[test]

@@ -36,10 +36,11 @@ ADDON = {
     ("outputs", "also"): ex.ALSO_OUTPUTS,
     ("job_keys",): list(ex.JOB_KEYS),
     ("motions",): list(ex.MOTIONS),
+    ("classify_methods",): list(ex.CLASSIFY_METHODS),
     ("states",): list(ex.STATES),
     ("finished_states",): list(ex.FINISHED),
 }
-AS_SETS = {("job_keys",), ("motions",), ("states",), ("finished_states",)}
+AS_SETS = {("job_keys",), ("motions",), ("classify_methods",), ("states",), ("finished_states",)}
 
 
 def leaves(value, path=()):
@@ -113,8 +114,9 @@ EXPECTED = {
                                  "depth-ymax.exr", "depth-zmin.exr", "depth-zmax.exr"],
                 "also": {"stl": "swept.stl", "ply": "swept.ply", "obj": "swept.obj"}},
     "job_keys": ["resolution", "tolerance", "delta", "epsilon", "backend", "name", "motion",
-                 "target_triangles", "keep_start_mesh", "also"],
+                 "target_triangles", "keep_start_mesh", "also", "classify"],
     "motions": ["screw", "discrete"],
+    "classify_methods": ["auto", "flood", "axes"],
     "states": ["queued", "running", "done", "failed", "cancelled"],
     "finished_states": ["done", "failed", "cancelled"],
 }

@@ -9,6 +9,8 @@
 //!   250 B per start triangle at the peak (measured: 1.95 GB for 7.5e6 triangles at n = 1024,
 //!   4.04 GB for 16.1e6 at n = 1500), 30 B more with --keep-start-mesh (its GLB bytes are held
 //!   until the write);
+//! - with the flood classification (`mesh::flood`), two bits per voxel: the offset's reach and
+//!   the flood (nx·ny·nz / 4 bytes; 190 MB at 1500 × 600 × 850, a few percent of the rest);
 //! - BASE_BYTES for the program, its threads and the inputs. Poses do not count: the sweep's
 //!   input holds the rows and the motion's intervals, and the sub-poses between them are made a
 //!   batch at a time (`input::poses`), however many the motion needs.
@@ -37,8 +39,8 @@ fn pixels(grid: &Grid) -> f64 {
     y * z + x * z + x * y
 }
 
-/// Estimated peak memory of a run on `grid`, bytes.
-pub fn estimate(grid: &Grid, keep_start_mesh: bool) -> f64 {
+/// Estimated peak memory of a run on `grid`, bytes (`flood`: the flood classification).
+pub fn estimate(grid: &Grid, keep_start_mesh: bool, flood: bool) -> f64 {
     let pixels = pixels(grid);
     let per_triangle = BYTES_PER_TRIANGLE
         + if keep_start_mesh {
@@ -46,7 +48,9 @@ pub fn estimate(grid: &Grid, keep_start_mesh: bool) -> f64 {
         } else {
             0.0
         };
-    BASE_BYTES + pixels * (IMAGE_BYTES_PER_PIXEL + TRIANGLES_PER_PIXEL * per_triangle)
+    let [x, y, z] = grid.dims.map(f64::from);
+    let bits = if flood { x * y * z / 4.0 } else { 0.0 };
+    BASE_BYTES + pixels * (IMAGE_BYTES_PER_PIXEL + TRIANGLES_PER_PIXEL * per_triangle) + bits
 }
 
 /// Memory this process can still get, bytes: the least of MemAvailable (/proc/meminfo),
@@ -96,14 +100,14 @@ fn cgroup_headroom() -> Option<f64> {
 }
 
 /// Refuse a run whose estimate exceeds `available` bytes, naming the estimate and the largest
-/// resolution (and the matching tolerance) that would fit. Memory grows with n², so the
-/// resolution scales by the square root of the ratio.
+/// resolution (and the matching tolerance) that would fit.
 pub fn check(
     grid: &Grid,
     keep_start_mesh: bool,
+    flood: bool,
     available: Option<f64>,
 ) -> Result<(), OptionError> {
-    let need = estimate(grid, keep_start_mesh);
+    let need = estimate(grid, keep_start_mesh, flood);
     let Some(avail) = available else {
         return Ok(());
     };
@@ -111,8 +115,23 @@ pub fn check(
         return Ok(());
     }
     let n = grid.resolution();
-    let ratio = ((avail - BASE_BYTES).max(0.0) / (need - BASE_BYTES)).sqrt();
-    let fit = ((n as f64 * ratio).floor() as u32).max(1);
+    // The largest resolution whose scaled grid fits (memory grows with n², and with n³ for the
+    // flood's bits): a binary search, since the estimate grows with the resolution.
+    let scaled = |m: u32| Grid {
+        dims: grid
+            .dims
+            .map(|d| ((d as u64 * m as u64).div_ceil(n as u64) as u32).max(1)),
+        ..*grid
+    };
+    let (mut fit, mut too_big) = (1u32, n);
+    while too_big - fit > 1 {
+        let mid = fit + (too_big - fit) / 2;
+        if estimate(&scaled(mid), keep_start_mesh, flood) <= avail {
+            fit = mid;
+        } else {
+            too_big = mid;
+        }
+    }
     let gib = |b: f64| b / 1073741824.0;
     Err(OptionError::new(OptionKey::Resolution, format!(
         "resolution {n} needs an estimated {:.1} GiB of memory (grid {}x{}x{}: depth images, classifier ranges, about {:.2e} start-mesh triangles and the simplifier), but only {:.1} GiB is available (MemAvailable, RLIMIT_AS, cgroup memory.max); nothing was allocated: use $resolution {fit} or less, or $tolerance {:.3e} or more (the estimate is made for parts that fill their box; for a thin or sparse part, $no_memory_check runs anyway)",
@@ -140,24 +159,30 @@ mod tests {
 
     #[test]
     fn estimate_grows_with_n_squared_and_the_suggestion_fits() {
-        let (a, b) = (estimate(&grid(1024), false), estimate(&grid(2048), false));
+        let (a, b) = (
+            estimate(&grid(1024), false, false),
+            estimate(&grid(2048), false, false),
+        );
         assert!(
             (b - BASE_BYTES) / (a - BASE_BYTES) > 3.99
                 && (b - BASE_BYTES) / (a - BASE_BYTES) < 4.01
         );
-        assert!(estimate(&grid(1024), true) > a);
+        assert!(estimate(&grid(1024), true, false) > a);
+        assert!(estimate(&grid(1024), false, true) > a);
         let avail = 4e9;
-        let e = check(&grid(12288), false, Some(avail)).unwrap_err();
-        let fit: u32 = e
-            .worded(OptionKey::flag)
-            .split("--resolution ")
-            .nth(1)
-            .and_then(|s| s.split(' ').next())
-            .and_then(|s| s.parse().ok())
-            .expect("a resolution in the message");
-        assert!(estimate(&grid(fit), false) <= avail, "{}", e);
-        assert!(estimate(&grid(fit + 2), false) > avail, "{}", e);
-        assert!(check(&grid(256), false, Some(avail)).is_ok());
-        assert!(check(&grid(12288), false, None).is_ok());
+        for flood in [false, true] {
+            let e = check(&grid(12288), false, flood, Some(avail)).unwrap_err();
+            let fit: u32 = e
+                .worded(OptionKey::flag)
+                .split("--resolution ")
+                .nth(1)
+                .and_then(|s| s.split(' ').next())
+                .and_then(|s| s.parse().ok())
+                .expect("a resolution in the message");
+            assert!(estimate(&grid(fit), false, flood) <= avail, "{}", e);
+            assert!(estimate(&grid(fit + 2), false, flood) > avail, "{}", e);
+            assert!(check(&grid(256), false, flood, Some(avail)).is_ok());
+            assert!(check(&grid(12288), false, flood, None).is_ok());
+        }
     }
 }

@@ -31,6 +31,33 @@ pub struct Generator {
     pub warnings: Vec<String>,
 }
 
+impl Part {
+    /// Edges (unordered vertex pairs, by position) that an odd number of this part's triangles
+    /// use: the part's boundary. None means the part is closed, so its surface separates an
+    /// inside from the outside (a flood from outside cannot reach the inside without crossing
+    /// it). Vertices are matched by position, so a seam of duplicated vertices counts as closed.
+    pub fn boundary_edges(&self) -> usize {
+        let key = |i: u32| {
+            let p = self.positions[i as usize];
+            [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()]
+        };
+        let mut odd = std::collections::HashSet::new();
+        for t in &self.triangles {
+            for (a, b) in [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])] {
+                let (a, b) = (key(a), key(b));
+                if a == b {
+                    continue; // a degenerate edge bounds nothing
+                }
+                let e = if a < b { (a, b) } else { (b, a) };
+                if !odd.remove(&e) {
+                    odd.insert(e);
+                }
+            }
+        }
+        odd.len()
+    }
+}
+
 impl Generator {
     pub fn triangle_count(&self) -> usize {
         self.parts.iter().map(|p| p.triangles.len()).sum()

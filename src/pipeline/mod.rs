@@ -14,12 +14,12 @@ pub use outputs::{
     output_paths, output_stem, OutputPaths, MESH_SUFFIX, REPORT_SUFFIX, START_MESH_SUFFIX,
 };
 pub use report::{
-    CountsReport, DepthImagesReport, InputsReport, MeshReport, ParametersReport, Report,
-    TimingsReport,
+    ClassificationReport, CountsReport, DepthImagesReport, InputsReport, MeshReport,
+    ParametersReport, Report, TimingsReport,
 };
 
 use outputs::refuse_outputs_on_inputs;
-use report::HAUSDORFF_SCOPE;
+use report::{HAUSDORFF_SCOPE, HAUSDORFF_SCOPE_FLOOD};
 
 use crate::depth::AXIS_NAMES;
 use crate::error::{OptionError, OptionKey};
@@ -29,8 +29,9 @@ use crate::input::posed::{self, SweepInput};
 use crate::io::exr_depth::{self, ExtraMeta};
 use crate::io::mesh_formats::MeshFormat;
 use crate::io::{atomic, gltf_in, gltf_out, trajectory};
-use crate::mesh::classify::Classifier;
+use crate::mesh::classify::{Classifier, Method};
 use crate::mesh::extract;
+use crate::mesh::flood;
 use crate::mesh::manifold::Joined;
 use crate::mesh::Mesh;
 use crate::simplify::{simplify_until, SimplifyOptions};
@@ -60,6 +61,51 @@ pub struct RunOptions {
     pub check_memory: bool,
     /// What moves the parts between rows: the screw motion (covered) or nothing (discrete).
     pub motion: Motion,
+    /// How voxels are classified: condition ⋆ with or without the flood from outside.
+    pub classify: Method,
+}
+
+/// The classification chosen for a job, and why (from `RunOptions::classify` and whether every
+/// part of the generator is closed).
+#[derive(Clone, Debug)]
+pub struct ClassifyPlan {
+    pub flood: bool,
+    pub reason: String,
+}
+
+impl ClassifyPlan {
+    fn new(asked: Method, generator: &crate::input::model::Generator) -> Self {
+        let open: Vec<String> = generator
+            .parts
+            .iter()
+            .filter_map(|p| {
+                let edges = p.boundary_edges();
+                (edges > 0).then(|| {
+                    let name = p
+                        .node_name
+                        .clone()
+                        .unwrap_or_else(|| format!("node {}", p.node_index));
+                    format!("{name:?} ({edges} boundary edges)")
+                })
+            })
+            .collect();
+        let open_text = |n: usize| {
+            let more = if open.len() > n {
+                format!(" and {} more", open.len() - n)
+            } else {
+                String::new()
+            };
+            format!("{}{more}", open[..open.len().min(n)].join(", "))
+        };
+        let (flood, reason) = match asked {
+            Method::Axes => (false, "asked for (--classify axes): condition ⋆ alone".to_string()),
+            Method::Flood if open.is_empty() => (true, "asked for (--classify flood); every part is closed".to_string()),
+            Method::Flood => (true, format!("asked for (--classify flood); open parts: {}: where the flood enters one through a hole, the result is a shell around its surface", open_text(3))),
+            Method::Auto if open.is_empty() => (true, "every part is closed, so the flood from outside cannot enter a part (--classify auto)".to_string()),
+            Method::Auto => (false, format!("open parts: {}: a flood could enter them, so condition ⋆ alone (--classify auto); --classify flood carves hidden pockets anyway", open_text(3))),
+        };
+        ClassifyPlan { flood, reason }
+    }
 }
 
 /// A job whose inputs are read and checked and whose sweep input is built: everything that can
@@ -70,6 +116,7 @@ pub struct Prepared {
     pub input: SweepInput,
     /// The simplifier's bands, worked out (and checked) before any sweeping.
     pub band: SimplifyOptions,
+    pub classify: ClassifyPlan,
     pub warnings: Vec<String>,
     read_secs: f64,
     setup_secs: f64,
@@ -108,10 +155,12 @@ pub fn prepare(opts: &RunOptions) -> anyhow::Result<Prepared> {
         opts.motion,
     )?;
     let band = SimplifyOptions::for_params(&input.params, input.grid.h, opts.target_triangles)?;
+    let classify = ClassifyPlan::new(opts.classify, &generator);
     if opts.check_memory {
         crate::input::memory::check(
             &input.grid,
             opts.keep_start_mesh,
+            classify.flood,
             crate::input::memory::available(),
         )?;
     }
@@ -120,6 +169,7 @@ pub fn prepare(opts: &RunOptions) -> anyhow::Result<Prepared> {
         outputs,
         input,
         band,
+        classify,
         warnings: generator.warnings,
         read_secs: (t1 - t0).as_secs_f64(),
         setup_secs: t1.elapsed().as_secs_f64(),
@@ -151,7 +201,28 @@ pub fn execute(
 
     checkpoint(observer, "classify")?;
     tracing::info!("classifying voxels and extracting the boundary mesh");
-    let classifier = Classifier::new(&images);
+    let mut classifier = Classifier::new(&images);
+    let mut classification = ClassificationReport {
+        method: if job.classify.flood {
+            Method::Flood
+        } else {
+            Method::Axes
+        }
+        .name(),
+        asked: opts.classify.name(),
+        reason: job.classify.reason.clone(),
+        reach_voxels: None,
+        flooded_voxels: None,
+    };
+    if job.classify.flood {
+        tracing::info!("flooding from outside: {}", job.classify.reason);
+        let reach = crate::sweep::reach::reach(input, observer)?;
+        let flooded = flood::flood(&reach);
+        classification.reach_voxels = Some(reach.count());
+        classification.flooded_voxels = Some(flooded.count());
+        drop(reach);
+        classifier = classifier.carve(flooded);
+    }
     // Where voxels touch only along an edge or at a corner, outside voxels join them so the
     // start mesh is a 2-manifold; the simplifier keeps it one. The tolerance band stays that of
     // the classifier's voxels (docs/design.md, "A 2-manifold start mesh").
@@ -250,7 +321,11 @@ pub fn execute(
             + mu
             + 2.0 * input.rounding * h
             + output_rounding,
-        hausdorff_bound_scope: HAUSDORFF_SCOPE,
+        hausdorff_bound_scope: if classifier.is_carved() {
+            HAUSDORFF_SCOPE_FLOOD
+        } else {
+            HAUSDORFF_SCOPE
+        },
         clearance: input.params.delta - eps_voxel - input.params.epsilon - output_rounding,
         output_rounding,
     };
@@ -305,6 +380,7 @@ pub fn execute(
             epsilon_global: input.params.epsilon + input.params.delta + input.params.sigma + mu,
         },
         motion: input.motion.clone(),
+        classification,
         backend: backend.describe(),
         counts: CountsReport {
             triangles: input.triangles.len() as u64,

@@ -14,6 +14,23 @@ use crate::simplify::SimplifyStats;
 /// What the report's `hausdorff_bound` covers (paper, section 4).
 pub(super) const HAUSDORFF_SCOPE: &str = "wherever the swept volume's concavities are visible along some axis; concavities hidden from all six directions are filled and can lie farther: measure with sweptvol verify";
 
+/// What the bound covers with the flood classification: everything.
+pub(super) const HAUSDORFF_SCOPE_FLOOD: &str = "everywhere: the flood from outside opens every concavity it can reach without crossing the rendered offset, so no pocket is filled (voids sealed inside the swept volume are filled, and have no surface)";
+
+/// How the voxels were classified, and why (`--classify`).
+#[derive(Clone, Debug, Serialize)]
+pub struct ClassificationReport {
+    /// `flood` (condition ⋆ less the flood from outside) or `axes` (condition ⋆ alone).
+    pub method: &'static str,
+    /// What was asked: `auto`, `flood` or `axes`.
+    pub asked: &'static str,
+    pub reason: String,
+    /// Voxels whose centres the rendered offset covers (flood only).
+    pub reach_voxels: Option<u64>,
+    /// Voxels the flood from outside reaches (flood only).
+    pub flooded_voxels: Option<u64>,
+}
+
 /// The report written beside the depth images (`<name>.report.json`).
 #[derive(Clone, Debug, Serialize)]
 pub struct Report {
@@ -25,6 +42,7 @@ pub struct Report {
     pub parameters: ParametersReport,
     /// The motion between rows: the model, the budget μ, the poses rendered.
     pub motion: MotionReport,
+    pub classification: ClassificationReport,
     pub backend: String,
     pub counts: CountsReport,
     /// Seconds per stage.

@@ -2,6 +2,7 @@
 //! and the schemas of `job.json` (read) and `status.json` (written). Keep the doc in step.
 
 use crate::input::motion::Motion;
+use crate::mesh::classify::Method;
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
@@ -100,6 +101,7 @@ pub fn names_json() -> serde_json::Value {
         },
         "job_keys": JOB_KEY_LIST,
         "motions": [Motion::Screw.name(), Motion::Discrete.name()],
+        "classify_methods": [Method::Auto.name(), Method::Flood.name(), Method::Axes.name()],
         "states": State::ALL.map(State::as_str),
         "finished_states": State::ALL.into_iter().filter(|s| s.is_finished()).map(State::as_str).collect::<Vec<_>>(),
     })
@@ -330,10 +332,12 @@ pub struct JobOptions {
     pub also: Option<Vec<MeshFormat>>,
     /// "screw" (the default: the motion between rows is covered) or "discrete".
     pub motion: Option<Motion>,
+    /// "auto" (the default), "flood" or "axes": how voxels are classified.
+    pub classify: Option<Method>,
 }
 
 /// The keys of `job.json`, as `JobOptions` names its fields.
-pub const JOB_KEY_LIST: [&str; 10] = [
+pub const JOB_KEY_LIST: [&str; 11] = [
     "resolution",
     "tolerance",
     "delta",
@@ -344,6 +348,7 @@ pub const JOB_KEY_LIST: [&str; 10] = [
     "keep_start_mesh",
     "also",
     "motion",
+    "classify",
 ];
 
 /// Parse `job.json` bytes; `path` names the file in errors (with serde_json's line and column).
@@ -398,6 +403,7 @@ impl JobOptions {
             also: self.also.clone().unwrap_or_default(),
             check_memory: true,
             motion: self.motion.unwrap_or_default(),
+            classify: self.classify.unwrap_or_default(),
         }
     }
 }
@@ -459,6 +465,7 @@ mod tests {
                 "keep_start_mesh" => "true",
                 "also" => "[\"stl\"]",
                 "motion" => "\"discrete\"",
+                "classify" => "\"axes\"",
                 _ => "1",
             };
             let json = format!("{{\"{key}\": {value}}}");
