@@ -24,6 +24,22 @@ impl VoxelBits {
         }
     }
 
+    /// From raw words in this layout (the GPU's read-back).
+    pub fn from_words(dims: [usize; 3], data: Vec<u64>) -> Self {
+        let words = dims[0].div_ceil(64);
+        assert_eq!(
+            data.len(),
+            words * dims[1] * dims[2],
+            "words for another grid"
+        );
+        VoxelBits { dims, words, data }
+    }
+
+    /// Every word, rows one after another.
+    pub fn words_slice(&self) -> &[u64] {
+        &self.data
+    }
+
     /// Row index of (j, k).
     pub fn row_index(&self, j: usize, k: usize) -> usize {
         k * self.dims[1] + j

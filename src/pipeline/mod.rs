@@ -216,7 +216,7 @@ pub fn execute(
     };
     if job.classify.flood {
         tracing::info!("flooding from outside: {}", job.classify.reason);
-        let reach = crate::sweep::reach::reach(input, observer)?;
+        let reach = backend.reach(input, observer)?;
         let flooded = flood::flood(&reach);
         classification.reach_voxels = Some(reach.count());
         classification.flooded_voxels = Some(flooded.count());

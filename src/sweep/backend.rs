@@ -4,9 +4,10 @@ use anyhow::bail;
 use serde::Serialize;
 
 use super::gpu::Gpu;
-use super::{cpu, Observer};
+use super::{cpu, reach, Observer};
 use crate::depth::DepthImages;
 use crate::input::posed::SweepInput;
+use crate::voxels::VoxelBits;
 
 /// Which sweep implementation runs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, serde::Deserialize)]
@@ -66,5 +67,21 @@ impl Backend {
             Backend::Gpu(g) => g.sweep(input, observer),
             Backend::Cpu { .. } => Ok(cpu::sweep(input, observer)?),
         }
+    }
+
+    /// The voxels the offset reaches (`sweep::reach`), on the GPU where its bits fit one
+    /// buffer, else on the CPU (said in the log).
+    pub fn reach(&self, input: &SweepInput, observer: &dyn Observer) -> anyhow::Result<VoxelBits> {
+        if let Backend::Gpu(g) = self {
+            if let Some(bits) = g.reach(input, observer)? {
+                return Ok(bits);
+            }
+            tracing::warn!(
+                "the flood's reach needs {} MiB, more than one buffer of {} holds: computing it on the CPU",
+                input.grid.dims.iter().map(|&d| d as u64).product::<u64>() >> 23,
+                g.describe()
+            );
+        }
+        Ok(reach::reach(input, observer)?)
     }
 }

@@ -11,6 +11,7 @@ use super::{empty_encoded, Cancelled, Observer};
 use crate::depth::DepthImages;
 use crate::depth::SLOTS;
 use crate::input::posed::SweepInput;
+use crate::voxels::VoxelBits;
 
 pub const SHADER_SOURCE: &str = include_str!("../../shaders/sweep.wgsl");
 const WORKGROUP_SIZE: u32 = 64;
@@ -38,7 +39,19 @@ pub struct Gpu {
     device: wgpu::Device,
     queue: wgpu::Queue,
     pipeline: wgpu::ComputePipeline,
+    /// `reach_main`: the voxels the offset covers (`sweep::reach`'s twin).
+    reach_pipeline: wgpu::ComputePipeline,
     pub info: wgpu::AdapterInfo,
+}
+
+/// The buffers one kind of dispatch reads: its pipeline, its bind group (binding 0 the
+/// parameters, 2 the poses) and those two buffers.
+struct Dispatch<'a> {
+    pipeline: &'a wgpu::ComputePipeline,
+    bind_group: wgpu::BindGroup,
+    params: wgpu::Buffer,
+    poses: wgpu::Buffer,
+    pose_capacity: u32,
 }
 
 /// Rank adapters: hardware GPUs first, CPU adapters (lavapipe) last.
@@ -91,18 +104,22 @@ impl Gpu {
             label: Some("sweep.wgsl"),
             source: wgpu::ShaderSource::Wgsl(SHADER_SOURCE.into()),
         });
-        let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: Some("sweep"),
-            layout: None,
-            module: &module,
-            entry_point: Some("sweep_main"),
-            compilation_options: Default::default(),
-            cache: None,
-        });
+        let pipeline_for = |entry: &str| {
+            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(entry),
+                layout: None,
+                module: &module,
+                entry_point: Some(entry),
+                compilation_options: Default::default(),
+                cache: None,
+            })
+        };
+        let (pipeline, reach_pipeline) = (pipeline_for("sweep_main"), pipeline_for("reach_main"));
         Ok(Some(Gpu {
             device,
             queue,
             pipeline,
+            reach_pipeline,
             info,
         }))
     }
@@ -136,47 +153,13 @@ impl Gpu {
         input: &SweepInput,
         observer: &dyn Observer,
     ) -> anyhow::Result<DepthImages> {
-        let limits = self.device.limits();
         let encoded = empty_encoded(input);
         let image_bytes: u64 = encoded
             .iter()
             .map(|e| 4 * e.len() as u64)
             .max()
             .unwrap_or(0);
-        // Poses go up one dispatch's worth at a time into a buffer of at most MAX_WORKGROUPS
-        // poses (3 MiB): the sub-poses of a motion are made on demand, never all stored.
-        let pose_capacity = input
-            .parts
-            .iter()
-            .map(|p| p.pose_count)
-            .max()
-            .unwrap_or(1)
-            .clamp(1, MAX_WORKGROUPS);
-        let pose_bytes = POSE_BYTES * pose_capacity as u64;
-        let input_bytes = (36 * input.triangles.len() as u64).max(pose_bytes);
-        let binding_limit = limits
-            .max_storage_buffer_binding_size
-            .min(limits.max_buffer_size);
-        if image_bytes.max(input_bytes) > binding_limit {
-            bail!(
-                "the sweep needs a {} MiB GPU buffer but {} allows {} MiB; lower the resolution or use --backend cpu",
-                image_bytes.max(input_bytes) >> 20,
-                self.info.name,
-                binding_limit >> 20
-            );
-        }
-        let tris = self.storage(
-            "triangles",
-            bytemuck::cast_slice(&input.triangles),
-            wgpu::BufferUsages::empty(),
-        );
-        let poses = self.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("poses"),
-            size: pose_bytes,
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        let mut pose_batch = Vec::with_capacity(pose_capacity as usize);
+        let tris = self.input_buffers(input, image_bytes)?;
         let images: Vec<wgpu::Buffer> = encoded
             .iter()
             .enumerate()
@@ -188,29 +171,137 @@ impl Gpu {
                 )
             })
             .collect();
+        let dispatch = self.dispatch(
+            &self.pipeline,
+            input,
+            &tris,
+            &[(3, &images[0]), (4, &images[1]), (5, &images[2])],
+        );
+        self.dispatch_all(input, &dispatch, observer, true)?;
+        let mut out = Vec::with_capacity(3);
+        for buffer in &images {
+            out.push(self.read_back(buffer)?);
+        }
+        let encoded: [Vec<u32>; 3] = out.try_into().map_err(|_| anyhow!("three images"))?;
+        debug_assert!(encoded.iter().all(|e| e.len() % SLOTS == 0));
+        Ok(DepthImages::from_encoded(input.grid, encoded))
+    }
+
+    /// The voxels whose centres the offset of some posed triangle covers (`sweep::reach`'s
+    /// twin, bit for bit). None when the bits exceed what one GPU buffer may hold.
+    pub fn reach(
+        &self,
+        input: &SweepInput,
+        observer: &dyn Observer,
+    ) -> anyhow::Result<Option<VoxelBits>> {
+        let d = input.grid.dims;
+        let empty = VoxelBits::new([d[0] as usize, d[1] as usize, d[2] as usize]);
+        let bytes = empty.heap_bytes() as u64;
+        let limits = self.device.limits();
+        if bytes
+            > limits
+                .max_storage_buffer_binding_size
+                .min(limits.max_buffer_size)
+        {
+            return Ok(None);
+        }
+        let tris = self.input_buffers(input, bytes)?;
+        let bits = self.storage(
+            "reach",
+            bytemuck::cast_slice(empty.words_slice()),
+            wgpu::BufferUsages::COPY_SRC,
+        );
+        drop(empty);
+        let dispatch = self.dispatch(&self.reach_pipeline, input, &tris, &[(6, &bits)]);
+        self.dispatch_all(input, &dispatch, observer, false)?;
+        let words = self.read_back(&bits)?;
+        let words: Vec<u64> = words
+            .chunks_exact(2)
+            .map(|w| w[0] as u64 | (w[1] as u64) << 32)
+            .collect();
+        Ok(Some(VoxelBits::from_words(
+            [d[0] as usize, d[1] as usize, d[2] as usize],
+            words,
+        )))
+    }
+
+    /// Check that the input and an output of `output_bytes` fit the device's buffers, and
+    /// upload the triangles.
+    fn input_buffers(&self, input: &SweepInput, output_bytes: u64) -> anyhow::Result<wgpu::Buffer> {
+        let limits = self.device.limits();
+        let pose_bytes = POSE_BYTES * pose_capacity(input) as u64;
+        let input_bytes = (36 * input.triangles.len() as u64).max(pose_bytes);
+        let binding_limit = limits
+            .max_storage_buffer_binding_size
+            .min(limits.max_buffer_size);
+        if output_bytes.max(input_bytes) > binding_limit {
+            bail!(
+                "the sweep needs a {} MiB GPU buffer but {} allows {} MiB; lower the resolution or use --backend cpu",
+                output_bytes.max(input_bytes) >> 20,
+                self.info.name,
+                binding_limit >> 20
+            );
+        }
+        Ok(self.storage(
+            "triangles",
+            bytemuck::cast_slice(&input.triangles),
+            wgpu::BufferUsages::empty(),
+        ))
+    }
+
+    /// The parameters, the pose buffer and the bind group of `pipeline` over `tris` and the
+    /// output buffers at their bindings.
+    fn dispatch<'a>(
+        &self,
+        pipeline: &'a wgpu::ComputePipeline,
+        input: &SweepInput,
+        tris: &wgpu::Buffer,
+        outputs: &[(u32, &wgpu::Buffer)],
+    ) -> Dispatch<'a> {
+        // Poses go up one dispatch's worth at a time into a buffer of at most MAX_WORKGROUPS
+        // poses (3 MiB): the sub-poses of a motion are made on demand, never all stored.
+        let pose_capacity = pose_capacity(input);
+        let poses = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("poses"),
+            size: POSE_BYTES * pose_capacity as u64,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
         let params = self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("params"),
             size: std::mem::size_of::<GpuParams>() as u64,
             usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        let layout = self.pipeline.get_bind_group_layout(0);
+        let mut entries = vec![entry(0, &params), entry(1, tris), entry(2, &poses)];
+        entries.extend(outputs.iter().map(|&(binding, b)| entry(binding, b)));
         let bind_group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("sweep"),
-            layout: &layout,
-            entries: &[
-                entry(0, &params),
-                entry(1, &tris),
-                entry(2, &poses),
-                entry(3, &images[0]),
-                entry(4, &images[1]),
-                entry(5, &images[2]),
-            ],
+            layout: &pipeline.get_bind_group_layout(0),
+            entries: &entries,
         });
+        Dispatch {
+            pipeline,
+            bind_group,
+            params,
+            poses,
+            pose_capacity,
+        }
+    }
 
+    /// Run `dispatch` over every posed triangle of `input`, one dispatch per batch of
+    /// triangles × poses; `progress`: report it to the observer (the sweep's own progress).
+    fn dispatch_all(
+        &self,
+        input: &SweepInput,
+        dispatch: &Dispatch,
+        observer: &dyn Observer,
+        progress: bool,
+    ) -> anyhow::Result<()> {
         let total = input.posed_triangles();
         let done = Arc::new(AtomicU64::new(0));
         let mut previous: Option<wgpu::SubmissionIndex> = None;
+        let mut pose_batch = Vec::with_capacity(dispatch.pose_capacity as usize);
         let max_tris_per_dispatch = MAX_WORKGROUPS * WORKGROUP_SIZE;
         for (index, part) in input.parts.iter().enumerate() {
             let mut tri_offset = 0;
@@ -233,7 +324,7 @@ impl Gpu {
                         .poses
                         .fill(index, first..first + pose_count as u64, &mut pose_batch);
                     self.queue
-                        .write_buffer(&poses, 0, bytemuck::cast_slice(&pose_batch));
+                        .write_buffer(&dispatch.poses, 0, bytemuck::cast_slice(&pose_batch));
                     let p = GpuParams {
                         tri_start: part.tri_start + tri_offset,
                         tri_count,
@@ -242,12 +333,13 @@ impl Gpu {
                         dims: input.grid.dims,
                         radius: input.radius,
                     };
-                    self.queue.write_buffer(&params, 0, bytemuck::bytes_of(&p));
+                    self.queue
+                        .write_buffer(&dispatch.params, 0, bytemuck::bytes_of(&p));
                     let mut encoder = self.device.create_command_encoder(&Default::default());
                     {
                         let mut pass = encoder.begin_compute_pass(&Default::default());
-                        pass.set_pipeline(&self.pipeline);
-                        pass.set_bind_group(0, &bind_group, &[]);
+                        pass.set_pipeline(dispatch.pipeline);
+                        pass.set_bind_group(0, &dispatch.bind_group, &[]);
                         pass.dispatch_workgroups(tri_count.div_ceil(WORKGROUP_SIZE), pose_count, 1);
                     }
                     let index = self.queue.submit([encoder.finish()]);
@@ -260,21 +352,19 @@ impl Gpu {
                     if let Some(prev) = previous.replace(index) {
                         self.wait(Some(prev))?;
                     }
-                    observer.progress(done.load(Ordering::Relaxed), total);
+                    if progress {
+                        observer.progress(done.load(Ordering::Relaxed), total);
+                    }
                     pose_offset += pose_count;
                 }
                 tri_offset += tri_count;
             }
         }
         self.wait(None)?;
-        observer.progress(done.load(Ordering::Relaxed), total);
-        let mut out = Vec::with_capacity(3);
-        for buffer in &images {
-            out.push(self.read_back(buffer)?);
+        if progress {
+            observer.progress(done.load(Ordering::Relaxed), total);
         }
-        let encoded: [Vec<u32>; 3] = out.try_into().map_err(|_| anyhow!("three images"))?;
-        debug_assert!(encoded.iter().all(|e| e.len() % SLOTS == 0));
-        Ok(DepthImages::from_encoded(input.grid, encoded))
+        Ok(())
     }
 
     fn wait(&self, index: Option<wgpu::SubmissionIndex>) -> anyhow::Result<()> {
@@ -315,6 +405,17 @@ impl Gpu {
         staging.unmap();
         Ok(data)
     }
+}
+
+/// Poses one dispatch holds at most: the largest part's pose count, at most MAX_WORKGROUPS.
+fn pose_capacity(input: &SweepInput) -> u32 {
+    input
+        .parts
+        .iter()
+        .map(|p| p.pose_count)
+        .max()
+        .unwrap_or(1)
+        .clamp(1, MAX_WORKGROUPS)
 }
 
 fn entry(binding: u32, buffer: &wgpu::Buffer) -> wgpu::BindGroupEntry<'_> {

@@ -9,7 +9,8 @@
 //! the exact offset of radius δ + μ is in the reach, by the same rounding argument as the
 //! images' (docs/design.md, "Why the sweep is conservative in floating point").
 //!
-//! CPU only (rayon); the GPU twin is not built yet. Cost: the x axis of the sweep once more,
+//! The CPU twin (rayon) of `reach_main` in shaders/sweep.wgsl (`gpu::Gpu::reach`), which the
+//! backend runs where the bits fit one GPU buffer. Cost: the x axis of the sweep once more,
 //! setting bits instead of folding depths. Memory: nx·ny·nz / 8 bytes.
 
 use rayon::prelude::*;
