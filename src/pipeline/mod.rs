@@ -213,11 +213,17 @@ pub fn execute(
         reason: job.classify.reason.clone(),
         reach_voxels: None,
         flooded_voxels: None,
+        reach_seconds: None,
+        flood_seconds: None,
     };
     if job.classify.flood {
         tracing::info!("flooding from outside: {}", job.classify.reason);
+        let t0 = Instant::now();
         let reach = backend.reach(input, observer)?;
+        let t1 = Instant::now();
         let flooded = flood::flood(&reach);
+        classification.reach_seconds = Some((t1 - t0).as_secs_f64());
+        classification.flood_seconds = Some(t1.elapsed().as_secs_f64());
         classification.reach_voxels = Some(reach.count());
         classification.flooded_voxels = Some(flooded.count());
         drop(reach);

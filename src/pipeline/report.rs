@@ -29,6 +29,9 @@ pub struct ClassificationReport {
     pub reach_voxels: Option<u64>,
     /// Voxels the flood from outside reaches (flood only).
     pub flooded_voxels: Option<u64>,
+    /// Seconds spent on the reach and on the flood (flood only; part of `timings.mesh`).
+    pub reach_seconds: Option<f64>,
+    pub flood_seconds: Option<f64>,
 }
 
 /// The report written beside the depth images (`<name>.report.json`).
