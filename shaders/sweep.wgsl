@@ -18,6 +18,10 @@ struct Params {
     dim_y: u32,
     dim_z: u32,
     radius: f32,      // δ + rounding term, grid units
+    flags: u32,       // bit 0: also set the reach (x axis only; see reach_bits)
+    pad0: u32,
+    pad1: u32,
+    pad2: u32,
 }
 
 @group(0) @binding(0) var<uniform> params: Params;
@@ -28,6 +32,44 @@ struct Params {
 @group(0) @binding(3) var<storage, read_write> image_x: array<atomic<u32>>;
 @group(0) @binding(4) var<storage, read_write> image_y: array<atomic<u32>>;
 @group(0) @binding(5) var<storage, read_write> image_z: array<atomic<u32>>;
+
+// The reach (src/sweep/reach.rs, cpu.rs `set_centres`): one bit per voxel, set where the voxel's
+// centre lies in the offset of a posed triangle, from the x axis's ray casts (columns along z,
+// rows along y: each pixel's ray is a row of voxel centres). Row (y, z) of voxels along x starts
+// at u32 word (z * dim_y + y) * words with words = 2 * ceil(dim_x / 64); voxel x is bit x % 32
+// of word x / 32 (the CPU's u64 words, little-endian). Written only when params.flags bit 0 is
+// set; otherwise a one-word placeholder is bound.
+@group(0) @binding(6) var<storage, read_write> reach_bits: array<atomic<u32>>;
+
+// Set bits lo..=hi (0 <= lo <= hi < dim_x) of the row starting at word `base`.
+fn set_span(base: u32, lo: u32, hi: u32) {
+    for (var w = lo / 32u; w <= hi / 32u; w++) {
+        var first = 0u;
+        if w == lo / 32u {
+            first = lo % 32u;
+        }
+        var last = 31u;
+        if w == hi / 32u {
+            last = hi % 32u;
+        }
+        let mask = (0xffffffffu >> (31u - last)) & (0xffffffffu << first);
+        // A plain load first: most spans are already set by a neighbouring triangle.
+        if (atomicLoad(&reach_bits[base + w]) & mask) != mask {
+            atomicOr(&reach_bits[base + w], mask);
+        }
+    }
+}
+
+// cpu.rs `set_centres`: the voxels of row (j, k) along x whose centres i + 1/2 lie in [t0, t1];
+// ceil/floor of t - 1/2 are exact in f32 below 2^22 voxels.
+fn set_centres(j: u32, k: u32, t0: f32, t1: f32) {
+    let lo = max(ceil(t0 - 0.5), 0.0);
+    let hi = min(floor(t1 - 0.5), f32(params.dim_x) - 1.0);
+    if lo <= hi {
+        let words = 2u * ((params.dim_x + 63u) / 64u);
+        set_span((k * params.dim_y + j) * words, u32(lo), u32(hi));
+    }
+}
 
 // Same constant as MIN_PROJECTED_EDGE2 in offset.rs.
 const MIN_PROJECTED_EDGE2: f32 = 1e-20;
@@ -264,6 +306,9 @@ fn splat(p0: vec3<f32>, p1: vec3<f32>, p2: vec3<f32>, axis: u32) {
             if hit.x <= hit.y {
                 let pixel = (height - 1u - u32(row)) * width + u32(col);
                 store(axis, 2u * pixel, hit.x, hit.y);
+                if axis == 0u && (params.flags & 1u) != 0u {
+                    set_centres(u32(row), u32(col), hit.x, hit.y);
+                }
             }
         }
     }
@@ -298,72 +343,5 @@ fn sweep_main(@builtin(global_invocation_id) id: vec3<u32>) {
     let p2 = pose_point(m, triangles[t + 6u], triangles[t + 7u], triangles[t + 8u]);
     for (var axis = 0u; axis < 3u; axis++) {
         splat(p0, p1, p2, axis);
-    }
-}
-
-// ---------------------------------------------------------------------------------------------
-// The reach (src/sweep/reach.rs `mark`): one bit per voxel, set where the voxel's centre lies in
-// the offset of a posed triangle, by the x axis's ray casts (columns along z, rows along y).
-// Row (y, z) of voxels along x starts at u32 word (z * dim_y + y) * reach_words; voxel x is bit
-// x % 32 of word x / 32 (the CPU's u64 words, little-endian). Only `reach_main` binds it.
-@group(0) @binding(6) var<storage, read_write> reach_bits: array<atomic<u32>>;
-
-// Set bits lo..=hi (0 <= lo <= hi < dim_x) of the row starting at word `base`.
-fn set_span(base: u32, lo: u32, hi: u32) {
-    for (var w = lo / 32u; w <= hi / 32u; w++) {
-        var first = 0u;
-        if w == lo / 32u {
-            first = lo % 32u;
-        }
-        var last = 31u;
-        if w == hi / 32u {
-            last = hi % 32u;
-        }
-        let mask = (0xffffffffu >> (31u - last)) & (0xffffffffu << first);
-        // A plain load first: most spans are already set by a neighbouring triangle.
-        if (atomicLoad(&reach_bits[base + w]) & mask) != mask {
-            atomicOr(&reach_bits[base + w], mask);
-        }
-    }
-}
-
-@compute @workgroup_size(64, 1, 1)
-fn reach_main(@builtin(global_invocation_id) id: vec3<u32>) {
-    if id.x >= params.tri_count || id.y >= params.pose_count {
-        return;
-    }
-    let t = 9u * (params.tri_start + id.x);
-    let m = 12u * (params.pose_start + id.y);
-    let p0 = pose_point(m, triangles[t], triangles[t + 1u], triangles[t + 2u]);
-    let p1 = pose_point(m, triangles[t + 3u], triangles[t + 4u], triangles[t + 5u]);
-    let p2 = pose_point(m, triangles[t + 6u], triangles[t + 7u], triangles[t + 8u]);
-    let r = params.radius;
-    // Columns along z, rows along y, depths along x (COLUMN_AXIS[0] = 2, ROW_AXIS[0] = 1).
-    let cs = pixel_span(p0.z, p1.z, p2.z, r, params.dim_z);
-    let rs = pixel_span(p0.y, p1.y, p2.y, r, params.dim_y);
-    if cs.x > cs.y || rs.x > rs.y {
-        return;
-    }
-    let tri = prepare(
-        vec3<f32>(p0.z, p0.y, p0.x),
-        vec3<f32>(p1.z, p1.y, p1.x),
-        vec3<f32>(p2.z, p2.y, p2.x),
-        r,
-    );
-    let words = 2u * ((params.dim_x + 63u) / 64u);
-    let top = f32(params.dim_x) - 1.0;
-    for (var j = rs.x; j <= rs.y; j++) {
-        let pv = f32(j) + 0.5;
-        for (var k = cs.x; k <= cs.y; k++) {
-            let hit = interval_at(tri, f32(k) + 0.5, pv);
-            if hit.x <= hit.y {
-                // Voxels i with i + 1/2 in [t0, t1]; exact in f32 below 2^22 voxels.
-                let lo = max(ceil(hit.x - 0.5), 0.0);
-                let hi = min(floor(hit.y - 0.5), top);
-                if lo <= hi {
-                    set_span((u32(k) * params.dim_y + u32(j)) * words, u32(lo), u32(hi));
-                }
-            }
-        }
     }
 }

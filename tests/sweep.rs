@@ -665,7 +665,8 @@ fn gpu_matches_cpu_twin_on_sub_poses() {
     );
 }
 
-/// The flood's reach on the GPU (`reach_main`) against its CPU twin (`sweep::reach`): the same
+/// The flood's reach on the GPU (set by `sweep_main`'s x axis) against its CPU twin
+/// (`sweep::reach`): the same
 /// voxels, except where a voxel centre lies within rounding of the offset's surface (the two ray
 /// casts may differ by ρ there, as the images' depths may).
 #[test]
@@ -676,10 +677,10 @@ fn gpu_reach_matches_cpu_twin() {
         let (g, poses) = random_case(seed);
         let input = build(&g, &poses, 40 + 8 * (seed as u32 % 5));
         let c = sweptvol::sweep::reach::reach(&input, &Silent).unwrap();
-        let gr = gpu
-            .reach(&input, &Silent)
-            .unwrap()
-            .expect("fits one buffer");
+        let (gi, gr) = gpu.sweep_with_reach(&input, &Silent).unwrap();
+        let gr = gr.expect("fits one buffer");
+        // Setting the reach changes nothing in the images.
+        assert_eq!(gi, gpu.sweep(&input, &Silent).unwrap(), "seed {seed}");
         assert_eq!(gr.dims, c.dims);
         set += c.count();
         let tris = posed_grid_triangles(&g, &poses, &input);
@@ -712,4 +713,19 @@ fn gpu_reach_matches_cpu_twin() {
         set > 10_000,
         "the cases set too few voxels ({set}) to test anything"
     );
+}
+
+/// The CPU sweep that sets the reach on the way gives the same images as the plain sweep and
+/// the same bits as the separate reach pass, exactly.
+#[test]
+fn reach_set_by_the_sweep_is_the_reach() {
+    for seed in 320..332 {
+        let (g, poses) = random_case(seed);
+        let input = build(&g, &poses, 36 + 8 * (seed as u32 % 4));
+        let (images, bits) = cpu::sweep_with_reach(&input, &Silent).unwrap();
+        assert_eq!(images, cpu::sweep(&input, &Silent).unwrap(), "seed {seed}");
+        let separate = sweptvol::sweep::reach::reach(&input, &Silent).unwrap();
+        assert_eq!(bits, separate, "seed {seed}");
+        assert!(bits.count() > 0, "seed {seed}: nothing set");
+    }
 }

@@ -196,7 +196,13 @@ pub fn execute(
     );
     checkpoint(observer, "sweep")?;
     observer.begin(crate::sweep::total_poses(input), input.posed_triangles());
-    let images = backend.sweep(input, observer)?;
+    // With the flood classification the sweep also sets the offset's reach (its x rays).
+    let (images, reach) = if job.classify.flood {
+        let (images, reach) = backend.sweep_with_reach(input, observer)?;
+        (images, Some(reach))
+    } else {
+        (backend.sweep(input, observer)?, None)
+    };
     let t_sweep = Instant::now();
 
     checkpoint(observer, "classify")?;
@@ -213,17 +219,13 @@ pub fn execute(
         reason: job.classify.reason.clone(),
         reach_voxels: None,
         flooded_voxels: None,
-        reach_seconds: None,
         flood_seconds: None,
     };
-    if job.classify.flood {
+    if let Some(reach) = reach {
         tracing::info!("flooding from outside: {}", job.classify.reason);
         let t0 = Instant::now();
-        let reach = backend.reach(input, observer)?;
-        let t1 = Instant::now();
         let flooded = flood::flood(&reach);
-        classification.reach_seconds = Some((t1 - t0).as_secs_f64());
-        classification.flood_seconds = Some(t1.elapsed().as_secs_f64());
+        classification.flood_seconds = Some(t0.elapsed().as_secs_f64());
         classification.reach_voxels = Some(reach.count());
         classification.flooded_voxels = Some(flooded.count());
         drop(reach);

@@ -29,8 +29,8 @@ pub struct ClassificationReport {
     pub reach_voxels: Option<u64>,
     /// Voxels the flood from outside reaches (flood only).
     pub flooded_voxels: Option<u64>,
-    /// Seconds spent on the reach and on the flood (flood only; part of `timings.mesh`).
-    pub reach_seconds: Option<f64>,
+    /// Seconds spent on the flood (flood only; part of `timings.mesh`). The reach is set by
+    /// the sweep's x axis on the way (part of `timings.sweep`).
     pub flood_seconds: Option<f64>,
 }
 

@@ -69,19 +69,28 @@ impl Backend {
         }
     }
 
-    /// The voxels the offset reaches (`sweep::reach`), on the GPU where its bits fit one
-    /// buffer, else on the CPU (said in the log).
-    pub fn reach(&self, input: &SweepInput, observer: &dyn Observer) -> anyhow::Result<VoxelBits> {
-        if let Backend::Gpu(g) = self {
-            if let Some(bits) = g.reach(input, observer)? {
-                return Ok(bits);
+    /// The sweep, and the voxels the offset reaches (`sweep::reach`) from the x axis's ray
+    /// casts on the way. On a GPU whose buffers cannot hold the bits, the reach is computed on
+    /// the CPU afterwards (said in the log).
+    pub fn sweep_with_reach(
+        &self,
+        input: &SweepInput,
+        observer: &dyn Observer,
+    ) -> anyhow::Result<(DepthImages, VoxelBits)> {
+        match self {
+            Backend::Gpu(g) => {
+                let (images, bits) = g.sweep_with_reach(input, observer)?;
+                if let Some(bits) = bits {
+                    return Ok((images, bits));
+                }
+                tracing::warn!(
+                    "the flood's reach needs {} MiB, more than one buffer of {} holds: computing it on the CPU",
+                    input.grid.dims.iter().map(|&d| d as u64).product::<u64>() >> 23,
+                    g.describe()
+                );
+                Ok((images, reach::reach(input, observer)?))
             }
-            tracing::warn!(
-                "the flood's reach needs {} MiB, more than one buffer of {} holds: computing it on the CPU",
-                input.grid.dims.iter().map(|&d| d as u64).product::<u64>() >> 23,
-                g.describe()
-            );
+            Backend::Cpu { .. } => Ok(cpu::sweep_with_reach(input, observer)?),
         }
-        Ok(reach::reach(input, observer)?)
     }
 }

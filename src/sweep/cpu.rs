@@ -13,6 +13,7 @@ use crate::depth::encode;
 use crate::depth::SLOTS;
 use crate::depth::{DepthImages, COLUMN_AXIS, ROW_AXIS};
 use crate::input::posed::SweepInput;
+use crate::voxels::{AtomicVoxelBits, VoxelBits};
 
 /// Triangles one rayon task renders under one pose.
 const TRIANGLES_PER_TASK: usize = 512;
@@ -21,6 +22,26 @@ const BATCH_SECONDS: f64 = 0.25;
 
 /// Render every posed triangle's offset into the six depth images.
 pub fn sweep(input: &SweepInput, observer: &dyn Observer) -> Result<DepthImages, Cancelled> {
+    render(input, observer, None)
+}
+
+/// The same, and the offset's reach (`sweep::reach`) from the x axis's ray casts on the way:
+/// the same bits as `reach::reach`, for a few percent more work instead of a second pass.
+pub fn sweep_with_reach(
+    input: &SweepInput,
+    observer: &dyn Observer,
+) -> Result<(DepthImages, VoxelBits), Cancelled> {
+    let d = input.grid.dims;
+    let bits = AtomicVoxelBits::new([d[0] as usize, d[1] as usize, d[2] as usize]);
+    let images = render(input, observer, Some(&bits))?;
+    Ok((images, bits.into_bits()))
+}
+
+fn render(
+    input: &SweepInput,
+    observer: &dyn Observer,
+    reach: Option<&AtomicVoxelBits>,
+) -> Result<DepthImages, Cancelled> {
     let images: [Vec<AtomicU32>; 3] =
         empty_encoded(input).map(|v| v.into_iter().map(AtomicU32::new).collect());
     let dims = input.grid.dims;
@@ -54,7 +75,8 @@ pub fn sweep(input: &SweepInput, observer: &dyn Observer) -> Result<DepthImages,
                     for t in chunk {
                         let posed = pose_triangle(m, t);
                         for (axis, image) in images.iter().enumerate() {
-                            splat(&posed, input.radius, axis, dims, image);
+                            let bits = if axis == 0 { reach } else { None };
+                            splat(&posed, input.radius, axis, dims, image, bits);
                         }
                     }
                 });
@@ -82,8 +104,18 @@ pub fn pose_triangle(m: &[f32; 12], t: &[f32; 9]) -> [[f32; 3]; 3] {
 }
 
 /// Ray-cast one posed triangle (grid units) against every pixel of the `axis` image that its
-/// offset can cover, and fold the hits into the image with atomic min/max.
-pub fn splat(p: &[[f32; 3]; 3], radius: f32, axis: usize, dims: [u32; 3], image: &[AtomicU32]) {
+/// offset can cover, and fold the hits into the image with atomic min/max. With `reach` (x axis
+/// only: its pixels are the rows of voxel centres along x), also set the voxels whose centres
+/// each hit covers, as `reach::mark` does.
+pub fn splat(
+    p: &[[f32; 3]; 3],
+    radius: f32,
+    axis: usize,
+    dims: [u32; 3],
+    image: &[AtomicU32],
+    reach: Option<&AtomicVoxelBits>,
+) {
+    debug_assert!(reach.is_none() || axis == 0);
     let (cu, rv) = (COLUMN_AXIS[axis], ROW_AXIS[axis]);
     let (width, height) = (dims[cu], dims[rv]);
     let Some((c0, c1)) = pixel_span(p[0][cu], p[1][cu], p[2][cu], radius, width) else {
@@ -107,10 +139,22 @@ pub fn splat(p: &[[f32; 3]; 3], radius: f32, axis: usize, dims: [u32; 3], image:
                     let i = line + SLOTS * (first as usize + k);
                     fold_min(&image[i], encode(t0[k]));
                     fold_max(&image[i + 1], encode(t1[k]));
+                    if let Some(bits) = reach {
+                        set_centres(bits, row as usize, first as usize + k, t0[k], t1[k]);
+                    }
                 }
             }
         }
     }
+}
+
+/// Set the voxels of row (j, k) along x whose centres i + ½ lie in [t0, t1] (grid units): i from
+/// ⌈t0 - ½⌉ to ⌊t1 - ½⌋, exact in f64 as in `mesh::classify`.
+pub fn set_centres(bits: &AtomicVoxelBits, j: usize, k: usize, t0: f32, t1: f32) {
+    let clamp = |x: f64| x.clamp(-1.0, i64::MAX as f64 / 2.0) as i64;
+    let lo = clamp((t0 as f64 - 0.5).ceil());
+    let hi = clamp((t1 as f64 - 0.5).floor());
+    bits.set_span(j, k, lo, hi);
 }
 
 /// Atomic min that skips the read-modify-write when a plain load shows it cannot lower the

@@ -32,6 +32,9 @@ struct GpuParams {
     pose_count: u32,
     dims: [u32; 3],
     radius: f32,
+    /// Bit 0: also set the reach.
+    flags: u32,
+    pad: [u32; 3],
 }
 
 /// A wgpu device ready to sweep.
@@ -39,15 +42,12 @@ pub struct Gpu {
     device: wgpu::Device,
     queue: wgpu::Queue,
     pipeline: wgpu::ComputePipeline,
-    /// `reach_main`: the voxels the offset covers (`sweep::reach`'s twin).
-    reach_pipeline: wgpu::ComputePipeline,
     pub info: wgpu::AdapterInfo,
 }
 
 /// The buffers one kind of dispatch reads: its pipeline, its bind group (binding 0 the
 /// parameters, 2 the poses) and those two buffers.
-struct Dispatch<'a> {
-    pipeline: &'a wgpu::ComputePipeline,
+struct Dispatch {
     bind_group: wgpu::BindGroup,
     params: wgpu::Buffer,
     poses: wgpu::Buffer,
@@ -104,22 +104,18 @@ impl Gpu {
             label: Some("sweep.wgsl"),
             source: wgpu::ShaderSource::Wgsl(SHADER_SOURCE.into()),
         });
-        let pipeline_for = |entry: &str| {
-            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                label: Some(entry),
-                layout: None,
-                module: &module,
-                entry_point: Some(entry),
-                compilation_options: Default::default(),
-                cache: None,
-            })
-        };
-        let (pipeline, reach_pipeline) = (pipeline_for("sweep_main"), pipeline_for("reach_main"));
+        let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some("sweep"),
+            layout: None,
+            module: &module,
+            entry_point: Some("sweep_main"),
+            compilation_options: Default::default(),
+            cache: None,
+        });
         Ok(Some(Gpu {
             device,
             queue,
             pipeline,
-            reach_pipeline,
             info,
         }))
     }
@@ -153,6 +149,25 @@ impl Gpu {
         input: &SweepInput,
         observer: &dyn Observer,
     ) -> anyhow::Result<DepthImages> {
+        Ok(self.render(input, observer, false)?.0)
+    }
+
+    /// The same, and the offset's reach from the x axis's ray casts on the way (`sweep::reach`'s
+    /// bits); None for the reach when its bits exceed what one GPU buffer may hold.
+    pub fn sweep_with_reach(
+        &self,
+        input: &SweepInput,
+        observer: &dyn Observer,
+    ) -> anyhow::Result<(DepthImages, Option<VoxelBits>)> {
+        self.render(input, observer, true)
+    }
+
+    fn render(
+        &self,
+        input: &SweepInput,
+        observer: &dyn Observer,
+        want_reach: bool,
+    ) -> anyhow::Result<(DepthImages, Option<VoxelBits>)> {
         let encoded = empty_encoded(input);
         let image_bytes: u64 = encoded
             .iter()
@@ -171,58 +186,49 @@ impl Gpu {
                 )
             })
             .collect();
+        drop(encoded);
+        let d = input.grid.dims;
+        let dims = [d[0] as usize, d[1] as usize, d[2] as usize];
+        let limits = self.device.limits();
+        let binding_limit = limits
+            .max_storage_buffer_binding_size
+            .min(limits.max_buffer_size);
+        let reach_bytes = (VoxelBits::new([dims[0], 1, 1]).heap_bytes() * dims[1] * dims[2]) as u64;
+        let reach = want_reach && reach_bytes <= binding_limit;
+        // The reach's bits, zeroed; a one-word placeholder when not wanted (sweep_main binds it).
+        let bits = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("reach"),
+            size: if reach { reach_bytes.max(4) } else { 4 },
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+            mapped_at_creation: false,
+        });
         let dispatch = self.dispatch(
-            &self.pipeline,
             input,
             &tris,
-            &[(3, &images[0]), (4, &images[1]), (5, &images[2])],
+            &[
+                (3, &images[0]),
+                (4, &images[1]),
+                (5, &images[2]),
+                (6, &bits),
+            ],
         );
-        self.dispatch_all(input, &dispatch, observer, true)?;
+        self.dispatch_all(input, &dispatch, observer, reach as u32)?;
         let mut out = Vec::with_capacity(3);
         for buffer in &images {
             out.push(self.read_back(buffer)?);
         }
         let encoded: [Vec<u32>; 3] = out.try_into().map_err(|_| anyhow!("three images"))?;
         debug_assert!(encoded.iter().all(|e| e.len() % SLOTS == 0));
-        Ok(DepthImages::from_encoded(input.grid, encoded))
-    }
-
-    /// The voxels whose centres the offset of some posed triangle covers (`sweep::reach`'s
-    /// twin, bit for bit). None when the bits exceed what one GPU buffer may hold.
-    pub fn reach(
-        &self,
-        input: &SweepInput,
-        observer: &dyn Observer,
-    ) -> anyhow::Result<Option<VoxelBits>> {
-        let d = input.grid.dims;
-        let empty = VoxelBits::new([d[0] as usize, d[1] as usize, d[2] as usize]);
-        let bytes = empty.heap_bytes() as u64;
-        let limits = self.device.limits();
-        if bytes
-            > limits
-                .max_storage_buffer_binding_size
-                .min(limits.max_buffer_size)
-        {
-            return Ok(None);
+        let images = DepthImages::from_encoded(input.grid, encoded);
+        if !reach {
+            return Ok((images, None));
         }
-        let tris = self.input_buffers(input, bytes)?;
-        let bits = self.storage(
-            "reach",
-            bytemuck::cast_slice(empty.words_slice()),
-            wgpu::BufferUsages::COPY_SRC,
-        );
-        drop(empty);
-        let dispatch = self.dispatch(&self.reach_pipeline, input, &tris, &[(6, &bits)]);
-        self.dispatch_all(input, &dispatch, observer, false)?;
-        let words = self.read_back(&bits)?;
-        let words: Vec<u64> = words
+        let words: Vec<u64> = self
+            .read_back(&bits)?
             .chunks_exact(2)
             .map(|w| w[0] as u64 | (w[1] as u64) << 32)
             .collect();
-        Ok(Some(VoxelBits::from_words(
-            [d[0] as usize, d[1] as usize, d[2] as usize],
-            words,
-        )))
+        Ok((images, Some(VoxelBits::from_words(dims, words))))
     }
 
     /// Check that the input and an output of `output_bytes` fit the device's buffers, and
@@ -251,13 +257,12 @@ impl Gpu {
 
     /// The parameters, the pose buffer and the bind group of `pipeline` over `tris` and the
     /// output buffers at their bindings.
-    fn dispatch<'a>(
+    fn dispatch(
         &self,
-        pipeline: &'a wgpu::ComputePipeline,
         input: &SweepInput,
         tris: &wgpu::Buffer,
         outputs: &[(u32, &wgpu::Buffer)],
-    ) -> Dispatch<'a> {
+    ) -> Dispatch {
         // Poses go up one dispatch's worth at a time into a buffer of at most MAX_WORKGROUPS
         // poses (3 MiB): the sub-poses of a motion are made on demand, never all stored.
         let pose_capacity = pose_capacity(input);
@@ -277,11 +282,10 @@ impl Gpu {
         entries.extend(outputs.iter().map(|&(binding, b)| entry(binding, b)));
         let bind_group = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("sweep"),
-            layout: &pipeline.get_bind_group_layout(0),
+            layout: &self.pipeline.get_bind_group_layout(0),
             entries: &entries,
         });
         Dispatch {
-            pipeline,
             bind_group,
             params,
             poses,
@@ -290,13 +294,13 @@ impl Gpu {
     }
 
     /// Run `dispatch` over every posed triangle of `input`, one dispatch per batch of
-    /// triangles × poses; `progress`: report it to the observer (the sweep's own progress).
+    /// triangles × poses, with `flags` for the shader.
     fn dispatch_all(
         &self,
         input: &SweepInput,
         dispatch: &Dispatch,
         observer: &dyn Observer,
-        progress: bool,
+        flags: u32,
     ) -> anyhow::Result<()> {
         let total = input.posed_triangles();
         let done = Arc::new(AtomicU64::new(0));
@@ -332,13 +336,15 @@ impl Gpu {
                         pose_count,
                         dims: input.grid.dims,
                         radius: input.radius,
+                        flags,
+                        pad: [0; 3],
                     };
                     self.queue
                         .write_buffer(&dispatch.params, 0, bytemuck::bytes_of(&p));
                     let mut encoder = self.device.create_command_encoder(&Default::default());
                     {
                         let mut pass = encoder.begin_compute_pass(&Default::default());
-                        pass.set_pipeline(dispatch.pipeline);
+                        pass.set_pipeline(&self.pipeline);
                         pass.set_bind_group(0, &dispatch.bind_group, &[]);
                         pass.dispatch_workgroups(tri_count.div_ceil(WORKGROUP_SIZE), pose_count, 1);
                     }
@@ -352,18 +358,14 @@ impl Gpu {
                     if let Some(prev) = previous.replace(index) {
                         self.wait(Some(prev))?;
                     }
-                    if progress {
-                        observer.progress(done.load(Ordering::Relaxed), total);
-                    }
+                    observer.progress(done.load(Ordering::Relaxed), total);
                     pose_offset += pose_count;
                 }
                 tri_offset += tri_count;
             }
         }
         self.wait(None)?;
-        if progress {
-            observer.progress(done.load(Ordering::Relaxed), total);
-        }
+        observer.progress(done.load(Ordering::Relaxed), total);
         Ok(())
     }
 

@@ -9,14 +9,15 @@
 //! the exact offset of radius δ + μ is in the reach, by the same rounding argument as the
 //! images' (docs/design.md, "Why the sweep is conservative in floating point").
 //!
-//! The CPU twin (rayon) of `reach_main` in shaders/sweep.wgsl (`gpu::Gpu::reach`), which the
-//! backend runs where the bits fit one GPU buffer. Cost: the x axis of the sweep once more,
-//! setting bits instead of folding depths. Memory: nx·ny·nz / 8 bytes.
+//! The sweep sets the same bits on its way (`cpu::sweep_with_reach`, and `sweep_main` on the
+//! GPU when params.flags asks), from the x axis's intervals it computes anyway: that is what a
+//! run uses. This separate pass is the reference the tests hold both to, and the fallback when
+//! the bits exceed one GPU buffer. Memory: nx·ny·nz / 8 bytes.
 
 use rayon::prelude::*;
 use wide::f32x8;
 
-use super::cpu::{pixel_span, pose_triangle};
+use super::cpu::{pixel_span, pose_triangle, set_centres};
 use super::offset::PreparedTriangle;
 use super::{Cancelled, Observer};
 use crate::depth::{COLUMN_AXIS, ROW_AXIS};
@@ -79,15 +80,8 @@ pub fn mark(p: &[[f32; 3]; 3], radius: f32, dims: [u32; 3], bits: &AtomicVoxelBi
             let (t0, t1) = (t0.to_array(), t1.to_array());
             for lane in 0..(c1 + 1 - first).min(8) as usize {
                 if t0[lane] <= t1[lane] {
-                    let lo = (t0[lane] as f64 - 0.5).ceil();
-                    let hi = (t1[lane] as f64 - 0.5).floor();
-                    let clamp = |x: f64| x.clamp(-1.0, i64::MAX as f64 / 2.0) as i64;
-                    bits.set_span(
-                        j as usize,
-                        (first + lane as u32) as usize,
-                        clamp(lo),
-                        clamp(hi),
-                    );
+                    let k = (first + lane as u32) as usize;
+                    set_centres(bits, j as usize, k, t0[lane], t1[lane]);
                 }
             }
         }
