@@ -344,3 +344,82 @@ fn random_closed_parts_stay_enclosed_and_within_the_bound() {
         assert!(checked > 0);
     }
 }
+
+/// An open part (a box without its top, under a wider lid): `auto` keeps condition ⋆ alone and
+/// says why (the box's inside stays filled, the solid a user may have meant), `flood` opens it
+/// through the gap under the lid, hollowing the box: its centre is then outside, yet every point
+/// of the part's surface is still inside.
+#[test]
+fn an_open_part_is_flooded_only_when_asked() {
+    use common::files::{glb, run_args, sweptvol, write};
+    let dir = tempfile::tempdir().unwrap();
+    let boxes = [
+        ([0.0, 0.0, 0.0], [1.0, 1.0, 1.0]),
+        ([-0.2, -0.2, 1.4], [1.2, 1.2, 1.5]),
+    ];
+    let g = boxes_generator(&boxes);
+    let part = &g.parts[0];
+    // Drop the box's top face (its two triangles with every vertex at z = 1).
+    let tris: Vec<[u32; 3]> = part
+        .triangles
+        .iter()
+        .copied()
+        .filter(|t| {
+            !t.iter()
+                .all(|&i| i < 8 && part.positions[i as usize].z == 1.0)
+        })
+        .collect();
+    assert_eq!(tris.len(), 22);
+    let pos: Vec<[f32; 3]> = part.positions.iter().map(|p| p.to_array()).collect();
+    let gpath = write(dir.path(), "cup.glb", glb(&pos, &tris));
+    let csv = write(
+        dir.path(),
+        "cup.csv",
+        "tx,ty,tz,qw,qx,qy,qz\n0,0,0,1,0,0,0\n",
+    );
+    let centre = [0.5, 0.5, 0.5];
+    let mut surface: Vec<V3> = Vec::new();
+    for t in &tris {
+        let [a, b, c] = t.map(|i| part.positions[i as usize].as_dvec3());
+        for (u, v) in [(0.2, 0.2), (0.6, 0.2), (0.2, 0.6), (0.0, 0.0)] {
+            surface.push((a + (b - a) * u + (c - a) * v).to_array());
+        }
+    }
+    for (classify, method, centre_inside) in [("auto", "axes", true), ("flood", "flood", false)] {
+        let out = dir.path().join(classify);
+        let o = sweptvol(&run_args(
+            &gpath,
+            &csv,
+            &out,
+            &["--resolution", "48", "--classify", classify],
+        ));
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let report: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(out.join("cup.report.json")).unwrap()).unwrap();
+        let c = &report["classification"];
+        assert_eq!(c["method"], method, "{c}");
+        if classify == "auto" {
+            let reason = c["reason"].as_str().unwrap();
+            assert!(
+                reason.contains("open parts") && reason.contains("\"part\" (4 boundary edges)"),
+                "{reason}"
+            );
+        }
+        let mesh = sweptvol::io::gltf_in::read_generator(&out.join("cup.swept.glb")).unwrap();
+        let m = &mesh.parts[0];
+        let positions: Vec<V3> = m
+            .positions
+            .iter()
+            .map(|p| m.world.transform_point3(p.as_dvec3()).to_array())
+            .collect();
+        let wn = |p: V3| winding_number(&positions, &m.triangles, p);
+        assert_eq!(
+            wn(centre) > 0.5,
+            centre_inside,
+            "{classify}: winding {} at the centre",
+            wn(centre)
+        );
+        let outside = surface.iter().filter(|p| wn(**p) < 0.5).count();
+        assert_eq!(outside, 0, "{classify}: {outside} surface points outside");
+    }
+}
