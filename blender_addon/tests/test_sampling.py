@@ -185,3 +185,27 @@ def test_posed_extent_never_exceeds_the_true_box():
     full = sm.posed_extent(placements, {"o": verts}, limit=10 ** 9)
     part = sm.posed_extent(placements, {"o": verts}, limit=100)
     assert 0 < part <= full
+
+
+def test_the_thresholds_constants_are_the_daemons(sweptvol_bin, tmp_path):
+    """The voxel size and clearance the add-on assumes for a tolerance are those the daemon
+    reports: if sweptvol's default δ, ε or μ change, this fails until sampling.py follows."""
+    import json
+    import subprocess
+
+    import trimesh  # in the test venv (scripts/test-all.sh): a missing one fails, never skips
+    trimesh.creation.box(extents=(1.0, 0.5, 0.3)).export(tmp_path / "box.glb")
+    (tmp_path / "box.csv").write_text("tx,ty,tz,qw,qx,qy,qz\n0,0,0,1,0,0,0\n0.5,0,0,1,0,0,0\n")
+    tolerance = 0.05
+    proc = subprocess.run(
+        [sweptvol_bin, "run", "--generator", str(tmp_path / "box.glb"), "--trajectory",
+         str(tmp_path / "box.csv"), "--out", str(tmp_path / "out"), "--tolerance", str(tolerance),
+         "--backend", "cpu", "--quiet"], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    report = json.loads((tmp_path / "out" / "box.report.json").read_text())
+    h = report["parameters"]["voxel_size"]
+    assert report["motion"]["model"] == "screw"
+    assert h == pytest.approx(tolerance / sm.BOUND_VOXELS, rel=1e-9)
+    assert report["mesh"]["clearance"] >= sm.CLEARANCE_VOXELS * h
+    assert report["mesh"]["clearance"] < (sm.CLEARANCE_VOXELS + 0.05) * h  # not far off either
+    assert sm.threshold_for_tolerance(tolerance) <= report["mesh"]["clearance"]
