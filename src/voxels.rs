@@ -35,11 +35,6 @@ impl VoxelBits {
         VoxelBits { dims, words, data }
     }
 
-    /// Every word, rows one after another.
-    pub fn words_slice(&self) -> &[u64] {
-        &self.data
-    }
-
     /// Row index of (j, k).
     pub fn row_index(&self, j: usize, k: usize) -> usize {
         k * self.dims[1] + j
@@ -74,8 +69,9 @@ impl VoxelBits {
         self.data.iter().map(|w| w.count_ones() as u64).sum()
     }
 
-    pub fn heap_bytes(&self) -> usize {
-        self.data.len() * 8
+    /// Bytes of the bits of a grid of `dims` (rows padded to whole u64 words), without making it.
+    pub fn bytes_for(dims: [usize; 3]) -> u64 {
+        8 * dims[0].div_ceil(64) as u64 * dims[1] as u64 * dims[2] as u64
     }
 }
 
@@ -154,6 +150,7 @@ mod tests {
                 assert!(!bits.get(i as isize, 1, 1) && !bits.get(i as isize, 2, 0));
             }
             assert_eq!(bits.count(), want.iter().filter(|&&w| w).count() as u64);
+            assert_eq!(8 * bits.data.len() as u64, VoxelBits::bytes_for([nx, 3, 2]));
             assert!(!bits.get(-1, 2, 1) && !bits.get(nx as isize, 2, 1));
         }
     }

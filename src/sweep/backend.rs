@@ -85,7 +85,7 @@ impl Backend {
                 }
                 tracing::warn!(
                     "the flood's reach needs {} MiB, more than one buffer of {} holds: computing it on the CPU",
-                    input.grid.dims.iter().map(|&d| d as u64).product::<u64>() >> 23,
+                    VoxelBits::bytes_for(input.grid.dims.map(|d| d as usize)) >> 20,
                     g.describe()
                 );
                 Ok((images, reach::reach(input, observer)?))

@@ -22,7 +22,7 @@ const BATCH_SECONDS: f64 = 0.25;
 
 /// Render every posed triangle's offset into the six depth images.
 pub fn sweep(input: &SweepInput, observer: &dyn Observer) -> Result<DepthImages, Cancelled> {
-    render(input, observer, None)
+    render(input, observer, 3, None)
 }
 
 /// The same, and the offset's reach (`sweep::reach`) from the x axis's ray casts on the way:
@@ -31,15 +31,26 @@ pub fn sweep_with_reach(
     input: &SweepInput,
     observer: &dyn Observer,
 ) -> Result<(DepthImages, VoxelBits), Cancelled> {
-    let d = input.grid.dims;
-    let bits = AtomicVoxelBits::new([d[0] as usize, d[1] as usize, d[2] as usize]);
-    let images = render(input, observer, Some(&bits))?;
+    let bits = AtomicVoxelBits::new(input.grid.dims.map(|d| d as usize));
+    let images = render(input, observer, 3, Some(&bits))?;
     Ok((images, bits.into_bits()))
 }
 
+/// The reach alone: the same loop on the x axis only (`sweep::reach`).
+pub(super) fn x_axis_reach(
+    input: &SweepInput,
+    observer: &dyn Observer,
+) -> Result<VoxelBits, Cancelled> {
+    let bits = AtomicVoxelBits::new(input.grid.dims.map(|d| d as usize));
+    render(input, observer, 1, Some(&bits))?;
+    Ok(bits.into_bits())
+}
+
+/// Render the first `axes` axes' images (1: x only, 3: all), setting `reach` from the x axis.
 fn render(
     input: &SweepInput,
     observer: &dyn Observer,
+    axes: usize,
     reach: Option<&AtomicVoxelBits>,
 ) -> Result<DepthImages, Cancelled> {
     let images: [Vec<AtomicU32>; 3] =
@@ -74,7 +85,7 @@ fn render(
                 .for_each(|(m, chunk)| {
                     for t in chunk {
                         let posed = pose_triangle(m, t);
-                        for (axis, image) in images.iter().enumerate() {
+                        for (axis, image) in images.iter().enumerate().take(axes) {
                             let bits = if axis == 0 { reach } else { None };
                             splat(&posed, input.radius, axis, dims, image, bits);
                         }

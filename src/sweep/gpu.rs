@@ -193,7 +193,7 @@ impl Gpu {
         let binding_limit = limits
             .max_storage_buffer_binding_size
             .min(limits.max_buffer_size);
-        let reach_bytes = (VoxelBits::new([dims[0], 1, 1]).heap_bytes() * dims[1] * dims[2]) as u64;
+        let reach_bytes = VoxelBits::bytes_for(dims);
         let reach = want_reach && reach_bytes <= binding_limit;
         // The reach's bits, zeroed; a one-word placeholder when not wanted (sweep_main binds it).
         let bits = self.device.create_buffer(&wgpu::BufferDescriptor {
