@@ -107,11 +107,10 @@ def evaluate(context, objects, frames, ref):
     return out
 
 
-def deviation_threshold(options, placements, ref):
+def deviation_threshold(options, placements, vertices):
     """The deviation from the screw motion allowed at a probe (sampling.threshold_for_*)."""
     if "tolerance" in options:
         return sampling.threshold_for_tolerance(options["tolerance"])
-    vertices = {name: co for name, (co, _) in ref.items()}
     extent = sampling.posed_extent(placements, vertices)
     if not extent > 0.0:
         raise ValueError("the selected objects have no extent: nothing to sweep")
@@ -129,10 +128,11 @@ def sample(context, objects, frames, options, halvings):
     placements = evaluate(context, objects, frames, ref)
     if options.get("motion") == "discrete" or len(frames) < 2:
         return {o.name: list(frames) for o in objects}, placements, None
-    threshold = deviation_threshold(options, placements, ref)
+    vertices = {name: co for name, (co, _) in ref.items()}
+    threshold = deviation_threshold(options, placements, vertices)
     records = sampling.refine(
-        frames, placements, lambda fs: evaluate(context, objects, fs, ref),
-        {name: co for name, (co, _) in ref.items()}, threshold, halvings)
+        frames, placements, lambda fs: evaluate(context, objects, fs, ref), vertices, threshold,
+        halvings)
     step = frames[1] - frames[0]
     record = sampling.summary(records, threshold, step, halvings)
     return {name: rec.frames for name, rec in records.items()}, placements, record
