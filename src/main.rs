@@ -10,7 +10,7 @@ use clap::{Args, Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 
 use sweptvol::error::{self, OptionError, OptionKey};
-use sweptvol::input::grid::{Accuracy, Overrides};
+use sweptvol::input::grid::{Accuracy, Overrides, Radii};
 use sweptvol::input::motion::Motion;
 use sweptvol::io::mesh_formats::MeshFormat;
 use sweptvol::mesh::classify::Method;
@@ -98,6 +98,23 @@ impl From<MotionArg> for Motion {
         match m {
             MotionArg::Screw => Motion::Screw,
             MotionArg::Discrete => Motion::Discrete,
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+enum RadiiArg {
+    /// The smallest δ and ε the exact checks need.
+    Exact,
+    /// The paper's δ and ε.
+    Paper,
+}
+
+impl From<RadiiArg> for Radii {
+    fn from(r: RadiiArg) -> Self {
+        match r {
+            RadiiArg::Exact => Radii::Exact,
+            RadiiArg::Paper => Radii::Paper,
         }
     }
 }
@@ -240,13 +257,14 @@ struct RunArgs {
     /// Voxels along the longest edge of the grid [default: 256 unless --tolerance is given].
     #[arg(long, value_name = "N", conflicts_with = "tolerance")]
     resolution: Option<u32>,
-    /// Error bound ε_global in world units; sets the voxel size h = t/(2√3+√2).
+    /// The stated Hausdorff bound in world units; sets the voxel size h = t/(k + μ/h): k = 3.29
+    /// with the exact radii, 4.88 with the paper's; μ/h = ¼ for screw motion, 0 for discrete.
     #[arg(long, value_name = "T", allow_negative_numbers = true)]
     tolerance: Option<f64>,
-    /// Offset radius δ in world units [default: (2√3+√2)h/2].
+    /// Offset radius δ in world units [default: by --radii].
     #[arg(long, value_name = "D", allow_negative_numbers = true)]
     delta: Option<f64>,
-    /// Simplification tolerance ε in world units [default: √3h/2].
+    /// Simplification tolerance ε in world units [default: by --radii].
     #[arg(long, value_name = "E", allow_negative_numbers = true)]
     epsilon: Option<f64>,
     /// Where the sweep runs: auto takes a hardware GPU if present, else the CPU.
@@ -280,6 +298,11 @@ struct RunArgs {
     /// `axes`: condition ⋆ alone (the paper's; concavities no axis sees are filled).
     #[arg(long, value_enum, default_value = "auto")]
     classify: ClassifyArg,
+    /// δ and ε where --delta and --epsilon are not given: `exact`, sized for the simplifier's
+    /// exact checks (δ ≈ 1.54h, ε = 0.6h; stated bound about 3.2h + μ); `paper`, the
+    /// paper's (δ = (2√3+√2)h/2, ε = √3h/2; about 4.17h + μ).
+    #[arg(long, value_enum, default_value = "exact")]
+    radii: RadiiArg,
     /// Replace existing outputs.
     #[arg(long)]
     overwrite: bool,
@@ -317,6 +340,7 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
         overrides: Overrides {
             delta: args.delta,
             epsilon: args.epsilon,
+            radii: args.radii.into(),
         },
         overwrite: args.overwrite,
         target_triangles: args.target_triangles.unwrap_or(0),

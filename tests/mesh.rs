@@ -55,18 +55,18 @@ fn simplify_options(input: &SweepInput) -> SimplifyOptions {
 }
 
 fn check_mesh(input: &SweepInput, mesh: &Mesh, tris: &[[V3; 3]], visible: bool, rng: &mut Rng) {
-    check_mesh_with(input, mesh, tris, visible, rng, 0.0);
+    check_mesh_with(input, mesh, tris, visible, rng, 3f64.sqrt() / 2.0);
 }
 
-/// `eps`: the tolerance band the mesh may occupy around the voxel boundary (0 for the
-/// unsimplified boundary itself).
+/// `radius`: every mesh point is within this of an outside and of an inside voxel's centre,
+/// voxels (the tolerance volume's radius; √3/2 for the unsimplified boundary itself).
 fn check_mesh_with(
     input: &SweepInput,
     mesh: &Mesh,
     tris: &[[V3; 3]],
     visible: bool,
     rng: &mut Rng,
-    eps: f64,
+    radius: f64,
 ) {
     assert!(
         mesh.unpaired_edges().is_empty(),
@@ -84,15 +84,14 @@ fn check_mesh_with(
     }
     // Clearance and (where concavities are visible) the Hausdorff bound, grid units.
     let d = input.params.delta / input.grid.h;
-    let half_diag = 3f64.sqrt() / 2.0;
-    let bound = eps + half_diag + d + 2.0 * input.rounding;
+    let bound = radius + d + 2.0 * input.rounding;
     let mut worst: f64 = 0.0;
     for t in &mesh.triangles {
         let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
         for p in [a, (a + b + c) / 3.0, (a + b) / 2.0] {
             let dist = dist_to_set(p.to_array(), tris);
             assert!(
-                dist >= d - half_diag - eps - 1e-9,
+                dist >= d - radius - 1e-9,
                 "mesh point {p} only {dist} voxels from the swept volume"
             );
             worst = worst.max(dist);
@@ -211,7 +210,7 @@ fn check_simplified(
         &tris,
         visible,
         &mut Rng::with_seed(seed),
-        opts.eps,
+        opts.tolerance.outside.max(opts.tolerance.inside),
     );
     assert!(stats.collapses > 0);
     (start.triangles.len(), out.triangles.len())

@@ -11,7 +11,7 @@ use common::{
 };
 use glam::{DMat4, DVec3};
 use sweptvol::depth::{DepthImages, COLUMN_AXIS, ROW_AXIS};
-use sweptvol::input::grid::{Accuracy, Overrides};
+use sweptvol::input::grid::{Accuracy, Overrides, Radii};
 use sweptvol::input::model::{Generator, Pose, Trajectory};
 use sweptvol::input::motion::Motion;
 use sweptvol::input::posed::{self, SweepInput};
@@ -172,7 +172,11 @@ fn degenerate_point_triangle_sweeps_a_ball() {
         &Trajectory::whole_scene(&[DMat4::IDENTITY]),
         Path::new("t.csv"),
         Accuracy::Tolerance(0.05),
-        Overrides::default(),
+        // The paper's δ ≈ 2.47h: a ball wide enough to cover at least 9 pixels per axis.
+        Overrides {
+            radii: Radii::Paper,
+            ..Overrides::default()
+        },
         Motion::Discrete,
     )
     .unwrap();

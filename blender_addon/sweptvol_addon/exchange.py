@@ -265,9 +265,10 @@ DEPTH_IMAGES = tuple(f"depth-{a}{s}.exr" for a in "xyz" for s in ("min", "max"))
 ALSO_OUTPUTS = {"stl": "swept.stl", "ply": "swept.ply", "obj": "swept.obj"}  # job.json `also`
 
 JOB_KEYS = ("resolution", "tolerance", "delta", "epsilon", "backend", "name", "motion",
-            "target_triangles", "keep_start_mesh", "also", "classify")
+            "target_triangles", "keep_start_mesh", "also", "classify", "radii")
 MOTIONS = ("screw", "discrete")  # job.json `motion`: the motion between rows covered, or not
 CLASSIFY_METHODS = ("auto", "flood", "axes")  # job.json `classify`: hidden pockets opened or not
+RADII = ("exact", "paper")  # job.json `radii`: δ and ε (sampling.py assumes the default, exact)
 STATES = ("queued", "running", "done", "failed", "cancelled")  # status.json `state`
 FINISHED = ("done", "failed", "cancelled")
 

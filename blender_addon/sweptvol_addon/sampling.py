@@ -36,11 +36,13 @@ import numpy as np
 PROBES = (0.25, 0.5, 0.75)  # where each interval is checked, as fractions of it
 MAX_TURN_DEGREES = 175.0  # an interval turning more is halved: the daemon refuses 179.9° and up
 DEFAULT_HALVINGS = 6  # the finest interval is step / 2^6
-# The result's clearance at the daemon's default δ and ε: δ - √3h/2 - ε = √2h/2 ≈ 0.707 voxels,
-# less the output rounding (at most 0.01 voxels). A deviation below it keeps a probe inside.
-CLEARANCE_VOXELS = 0.69
-# The stated bound at the defaults for continuous motion, in voxels: 2√3 + √2 + μ (μ = 1/4).
-BOUND_VOXELS = 2.0 * math.sqrt(3.0) + math.sqrt(2.0) + 0.25
+# The daemon's default radii (`--radii exact`, src/input/grid.rs): ε = 0.6h and the clearance
+# c = δ - √3h/2 - ε = 0.07h. The result's clearance is c less the output rounding (at most 0.01
+# voxels); a deviation below it keeps a probe inside.
+CLEARANCE_VOXELS = 0.06
+# What a tolerance is divided by for the voxel size, in voxels: the stated bound with a
+# face-joined voxel, √11/2 + δ/h, plus 0.1 for rounding (Radii::k_tolerance), plus μ = 1/4.
+BOUND_VOXELS = math.sqrt(11.0) / 2.0 + 0.6 + math.sqrt(3.0) / 2.0 + 0.07 + 0.1 + 0.25
 EPS = np.finfo(float).eps
 
 

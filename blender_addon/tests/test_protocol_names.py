@@ -37,10 +37,12 @@ ADDON = {
     ("job_keys",): list(ex.JOB_KEYS),
     ("motions",): list(ex.MOTIONS),
     ("classify_methods",): list(ex.CLASSIFY_METHODS),
+    ("radii",): list(ex.RADII),
     ("states",): list(ex.STATES),
     ("finished_states",): list(ex.FINISHED),
 }
-AS_SETS = {("job_keys",), ("motions",), ("classify_methods",), ("states",), ("finished_states",)}
+AS_SETS = {("job_keys",), ("motions",), ("classify_methods",), ("radii",), ("states",),
+           ("finished_states",)}
 
 
 def leaves(value, path=()):
@@ -114,9 +116,10 @@ EXPECTED = {
                                  "depth-ymax.exr", "depth-zmin.exr", "depth-zmax.exr"],
                 "also": {"stl": "swept.stl", "ply": "swept.ply", "obj": "swept.obj"}},
     "job_keys": ["resolution", "tolerance", "delta", "epsilon", "backend", "name", "motion",
-                 "target_triangles", "keep_start_mesh", "also", "classify"],
+                 "target_triangles", "keep_start_mesh", "also", "classify", "radii"],
     "motions": ["screw", "discrete"],
     "classify_methods": ["auto", "flood", "axes"],
+    "radii": ["exact", "paper"],
     "states": ["queued", "running", "done", "failed", "cancelled"],
     "finished_states": ["done", "failed", "cancelled"],
 }

@@ -114,7 +114,7 @@ pub struct Prepared {
     pub opts: RunOptions,
     pub outputs: OutputPaths,
     pub input: SweepInput,
-    /// The simplifier's bands, worked out (and checked) before any sweeping.
+    /// The simplifier's radii, worked out (and checked) before any sweeping.
     pub band: SimplifyOptions,
     pub classify: ClassifyPlan,
     pub warnings: Vec<String>,
@@ -241,11 +241,10 @@ pub fn execute(
     let t_extract = Instant::now();
     checkpoint(observer, "simplify")?;
     tracing::info!(
-        "simplifying {} triangles within the tolerance band",
+        "simplifying {} triangles within the tolerance volume",
         start.triangles.len()
     );
     let h = input.grid.h;
-    let half_diag = 3f64.sqrt() / 2.0; // voxels
     let band = job.band;
     // The start mesh's memory goes to the simplifier; what the report and --keep-start-mesh
     // need of it is taken first.
@@ -307,7 +306,6 @@ pub fn execute(
     let files = exr_depth::stage_all(&mut staged, &opts.out_dir, &stem, &images, &extra)?;
     debug_assert_eq!(files, job.outputs.depth);
     let secs = |a: Instant, b: Instant| (b - a).as_secs_f64();
-    let eps_voxel = half_diag * h;
     let mesh_report = MeshReport {
         file: job.outputs.mesh.clone(),
         triangles_start,
@@ -320,11 +318,12 @@ pub fn execute(
         manifold_defects: manifold,
         joined_voxels,
         joined_voxel_reach: join_reach * h,
-        // A mesh point is within ε of the classifier's voxel boundary (a new triangle), or on a
-        // face of an inside voxel: √3h/2 from an original voxel's centre, or `join_reach` from
-        // one for a joined voxel. Each such centre is within δ + μ + 2ρ of a rendered pose,
-        // and every rendered pose (a row or a sub-pose) is a pose of the motion.
-        hausdorff_bound: (input.params.epsilon + eps_voxel).max(join_reach * h)
+        // A mesh point lies in the tolerance volume (a new triangle: within `inside` of an
+        // inside voxel's centre), or on a face of an inside voxel: √3h/2 from an original
+        // voxel's centre, or `join_reach` from one for a joined voxel. Each such centre is
+        // within δ + μ + 2ρ of a rendered pose, and every rendered pose (a row or a sub-pose)
+        // is a pose of the motion.
+        hausdorff_bound: band.tolerance.inside.max(join_reach) * h
             + input.params.delta
             + mu
             + 2.0 * input.rounding * h
@@ -334,7 +333,9 @@ pub fn execute(
         } else {
             HAUSDORFF_SCOPE
         },
-        clearance: input.params.delta - eps_voxel - input.params.epsilon - output_rounding,
+        // Every mesh point is within `outside` of an outside voxel's centre, which is farther
+        // than δ from every rendered pose.
+        clearance: input.params.delta - band.tolerance.outside * h - output_rounding,
         output_rounding,
     };
     let extras = serde_json::json!({
@@ -378,6 +379,7 @@ pub fn execute(
         grid: input.grid,
         resolution: input.grid.resolution(),
         parameters: ParametersReport {
+            radii: opts.overrides.radii,
             voxel_size: h,
             delta: input.params.delta,
             epsilon: input.params.epsilon,
@@ -386,6 +388,8 @@ pub fn execute(
             delta_rendered: input.params.delta + mu + input.rounding * h,
             delta_upper: input.params.delta + mu + 2.0 * input.rounding * h,
             epsilon_global: input.params.epsilon + input.params.delta + input.params.sigma + mu,
+            tolerance_radius: band.tolerance.outside * h,
+            sweep_radius: band.sweep * h,
         },
         motion: input.motion.clone(),
         classification,

@@ -106,6 +106,8 @@ pub struct InputsReport {
 /// Distances in world units.
 #[derive(Clone, Debug, Serialize)]
 pub struct ParametersReport {
+    /// The rule δ and ε were taken from where not given: "exact" or "paper".
+    pub radii: crate::input::grid::Radii,
     pub voxel_size: f64,
     pub delta: f64,
     pub epsilon: f64,
@@ -118,6 +120,10 @@ pub struct ParametersReport {
     pub delta_upper: f64,
     /// The paper's ε_global = ε + δ + σ for the mesh stage, plus μ for screw motion.
     pub epsilon_global: f64,
+    /// The tolerance volume's radius about voxel centres, ε + √3h/2 (docs/design.md).
+    pub tolerance_radius: f64,
+    /// Every point a collapse sweeps over is within this of an outside voxel's centre.
+    pub sweep_radius: f64,
 }
 
 #[derive(Clone, Debug, Serialize)]

@@ -1,6 +1,6 @@
-//! The tolerance band around the voxel boundary: exact local distances from points to ∂W (W the
-//! union of inside voxels) and the sound region tests the simplifier's checks are built on
-//! (docs/design.md).
+//! The tolerance volume around the voxel boundary: exact local distances from points to the
+//! nearest voxel centres of each class and to ∂W (W the union of inside voxels), and the sound
+//! region tests the simplifier's checks are built on (docs/design.md).
 //!
 //! Units: grid units throughout (one voxel edge = 1).
 
@@ -10,11 +10,40 @@ use glam::DVec3;
 
 use crate::mesh::classify::Classifier;
 
-/// Distances are exact below this (the memo covers the 5×5×5 voxels around a point's voxel; a
-/// voxel three steps away is at least 2 from any point of the middle one).
+/// Distances to ∂W are exact below this (the memo covers the 5×5×5 voxels around a point's
+/// voxel; a voxel three steps away is at least 2 from any point of the middle one).
 pub const REACH: f64 = 2.0;
+/// Distances to voxel centres are exact below this (a centre three steps away is at least 2.5
+/// from any point of the middle voxel).
+pub const CENTRE_REACH: f64 = 2.5;
+/// Half a voxel diagonal, √3/2: every point of a voxel is this near its centre.
+pub const HALF_DIAGONAL: f64 = 0.866_025_403_784_438_6;
+
+/// The tolerance volume T (grid units): the points within `outside` of some outside voxel's
+/// centre and within `inside` of some inside voxel's centre. Invariant: √3/2 ≤ both <
+/// `CENTRE_REACH` (2.5), so ∂W lies in T (a point of a face is within √3/2 of both voxels' centres).
+/// An outside centre is farther than δ from the swept volume A and an inside one (of the
+/// reach) within δ + μ + 2ρ of it, so a point of T is at least δ - `outside` from A and at most
+/// `inside` + δ + μ + 2ρ from it (docs/design.md, "The simplifier").
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Tolerance {
+    pub outside: f64,
+    pub inside: f64,
+}
+
+impl Tolerance {
+    fn admits(self, d_out: f64, d_in: f64) -> bool {
+        d_out <= self.outside && d_in <= self.inside
+    }
+}
+
+/// The centre of voxel `v`.
+fn centre(v: [isize; 3]) -> DVec3 {
+    DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64) + 0.5
+}
 
 /// Squared distance from `p` to the voxel cube `v` (closed unit cube at integer corner `v`).
+#[cfg(test)]
 fn dist2_to_cube(p: DVec3, v: [isize; 3]) -> f64 {
     let lo = DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64);
     let g = (lo - p).max(p - (lo + 1.0)).max(DVec3::ZERO);
@@ -36,6 +65,25 @@ pub fn dist_to_boundary(cls: &Classifier, p: DVec3, limit: f64) -> Option<f64> {
             for i in lo.x as isize..=hi.x as isize {
                 if cls.inside(i, j, k) != here {
                     best = best.min(dist2_to_cube(p, [i, j, k]).sqrt());
+                }
+            }
+        }
+    }
+    (best <= limit).then_some(best)
+}
+
+/// The exact distance from `p` to the nearest centre of a voxel of class `inside` when it is at
+/// most `limit`, else None. Brute force: the reference for the memoized queries.
+#[cfg(test)]
+pub fn dist_to_centre(cls: &Classifier, p: DVec3, inside: bool, limit: f64) -> Option<f64> {
+    let lo = (p - DVec3::splat(limit + 0.5)).floor();
+    let hi = (p + DVec3::splat(limit + 0.5)).floor();
+    let mut best = f64::INFINITY;
+    for k in lo.z as isize..=hi.z as isize {
+        for j in lo.y as isize..=hi.y as isize {
+            for i in lo.x as isize..=hi.x as isize {
+                if cls.inside(i, j, k) == inside {
+                    best = best.min((p - centre([i, j, k])).length());
                 }
             }
         }
@@ -201,13 +249,21 @@ impl<'c> Proximity<'c> {
     }
 
     /// dist(p, ∂W) when it is below [`REACH`], else REACH; and whether p's voxel is inside W.
+    #[cfg(test)]
     pub fn distance(&mut self, p: DVec3) -> (f64, bool) {
         let near = self.nearest(p);
         (near.dist, near.inside)
     }
 
-    /// What [`Self::distance`] gives, with p's voxel and the other-class voxel nearest to p
-    /// (None when none is within [`REACH`]).
+    /// Whether point `p` lies in the tolerance volume `tol`.
+    pub fn point_within(&mut self, p: DVec3, tol: Tolerance) -> bool {
+        let near = self.nearest(p);
+        let (d_out, d_in) = near.centre_distances();
+        tol.admits(d_out, d_in)
+    }
+
+    /// What [`Self::distance`] gives, with p's voxel and the other-class voxel whose centre is
+    /// nearest to p (exact below [`CENTRE_REACH`]).
     fn nearest(&mut self, p: DVec3) -> Near {
         let v = p.floor();
         let home = [v.x as isize, v.y as isize, v.z as isize];
@@ -218,15 +274,22 @@ impl<'c> Proximity<'c> {
             [(l + 1.0) * (l + 1.0), l * l, 0.0, a * a, b * b]
         };
         let l = p - v; // in [0, 1)³
+                       // The same to the centres at offsets -2..=2.
+        let centre_gaps = |l: f64| [-1.5, -0.5, 0.5, 1.5, 2.5].map(|c: f64| (c - l) * (c - l));
         let (gx, gy, gz) = (gaps(l.x), gaps(l.y), gaps(l.z));
-        let (mut best, mut other) = (REACH * REACH, None);
+        let (cx, cy, cz) = (centre_gaps(l.x), centre_gaps(l.y), centre_gaps(l.z));
+        let mut best = REACH * REACH;
+        let (mut best_centre, mut other) = (CENTRE_REACH * CENTRE_REACH, None);
+        // The memo keeps the other-class voxels no other one dominates; per axis a dominator's
+        // centre is as near as the dominated one's too, so the nearest centre is among them.
         let mut bits = entry & OPPOSITE_BITS;
         while bits != 0 {
-            let [i, j, k] = BLOCK[bits.trailing_zeros() as usize];
+            let [i, j, k] = BLOCK[bits.trailing_zeros() as usize].map(usize::from);
             bits &= bits - 1;
-            let d2 = gx[i as usize] + gy[j as usize] + gz[k as usize];
-            if d2 < best {
-                best = d2;
+            best = best.min(gx[i] + gy[j] + gz[k]);
+            let c2 = cx[i] + cy[j] + cz[k];
+            if c2 < best_centre {
+                best_centre = c2;
                 other = Some([i, j, k]);
             }
         }
@@ -234,6 +297,8 @@ impl<'c> Proximity<'c> {
             dist: best.sqrt(),
             inside: entry >> INSIDE_BIT & 1 == 1,
             home,
+            own_centre: (p - centre(home)).length(),
+            other_centre: best_centre.sqrt(),
             other: other.map(|o| std::array::from_fn(|a| home[a] + o[a] as isize - 2)),
         }
     }
@@ -338,35 +403,35 @@ impl<'c> Proximity<'c> {
         true
     }
 
-    /// Whether every point of triangle `t` is within `limit` (< REACH) of ∂W. A piece passes
+    /// Whether every point of triangle `t` lies in the tolerance volume `tol`. A piece passes
     /// when
-    /// - dist(c) + R ≤ limit (distance is 1-Lipschitz), or
-    /// - its corners are within `limit` of both c's voxel and the other-class voxel nearest to
-    ///   c: a point of the piece in a voxel of c's class is within its distance to the latter of
-    ///   ∂W, one in a voxel of the other class within its distance to the former (a segment
-    ///   between cubes of different classes meets ∂W), and distances to cubes are convex, so at
-    ///   most `limit` over the piece when at most that at its corners (any inside cube and
-    ///   outside cube would do: a piece first tries its parent's pair); or
-    /// - it lies on ∂W ([`Self::on_boundary_plane`]).
+    /// - its centroid's distances to the nearest outside and inside centres plus R are within
+    ///   `tol` (distances are 1-Lipschitz; for c's own class its own voxel's centre serves), or
+    /// - its corners are within `tol.outside` of one outside centre and within `tol.inside` of one
+    ///   inside centre (c's own voxel's and the nearest other-class one's; a piece first tries
+    ///   its parent's pair): the distance to a point is convex, so at most that over the piece; or
+    /// - it lies on ∂W ([`Self::on_boundary_plane`]), which T holds.
     ///
-    /// It fails when dist(c) > limit (c itself is out). Pieces split into four at their edge
-    /// midpoints. Sound: may reject, never wrongly accepts.
-    pub fn triangle_within(&mut self, t: [DVec3; 3], limit: f64, r_min: f64) -> bool {
-        debug_assert!(limit < REACH && r_min > 0.0);
+    /// It fails when c is farther than `tol` allows from the other class's centres (c itself is
+    /// out). Pieces split into four at their edge midpoints. Sound: may reject, never wrongly
+    /// accepts.
+    pub fn triangle_within(&mut self, t: [DVec3; 3], tol: Tolerance, r_min: f64) -> bool {
+        debug_assert!(tol.outside.max(tol.inside) < CENTRE_REACH && r_min > 0.0);
+        let flat_from = tol.outside.min(tol.inside) - HALF_DIAGONAL;
         let judge = |me: &Self, piece: &[DVec3; 3], r: f64, near: &Near| {
-            let d = near.dist;
-            if d + r <= limit
-                || near.hugged(piece, limit)
-                || (r > limit && me.on_boundary_plane(piece))
+            let (d_out, d_in) = near.centre_distances();
+            if tol.admits(d_out + r, d_in + r)
+                || near.hugged(piece, tol)
+                || (r > flat_from && me.on_boundary_plane(piece))
             {
                 Verdict::Pass
-            } else if d > limit {
+            } else if !tol.admits(d_out, d_in) {
                 Verdict::Fail
             } else {
                 Verdict::Refine
             }
         };
-        let inherited = |piece: &[DVec3; 3], parent: &Near| parent.hugged(piece, limit);
+        let inherited = |piece: &[DVec3; 3], parent: &Near| parent.hugged(piece, tol);
         let split = |t: &[DVec3; 3], out: &mut Vec<[DVec3; 3]>| {
             let m = [
                 (t[0] + t[1]) / 2.0,
@@ -386,29 +451,31 @@ impl<'c> Proximity<'c> {
         within
     }
 
-    /// Whether tetrahedron `t` misses every point inside W deeper than `limit` (< REACH) below
-    /// ∂W. A piece passes when
-    /// - dist(c) + R ≤ limit, or
-    /// - c lies outside W with dist(c) ≥ R (the open ball then holds no point of W), or
-    /// - its corners are within `limit` of one outside voxel (c's own when c is outside, else
-    ///   the outside voxel nearest to c): a point of the piece inside W is within its distance
-    ///   to that voxel of ∂W, and that distance is convex, so at most `limit` over the piece
-    ///   (any outside voxel would do: a piece first tries its parent's), or
+    /// Whether every point of tetrahedron `t` is within `limit` (√3/2 ≤ limit < [`CENTRE_REACH`])
+    /// of an outside voxel's centre (hence farther than δ - `limit` from the swept volume). A
+    /// piece passes when
+    /// - the distance from its centroid c to the nearest outside centre plus R is within `limit`,
+    ///   or
+    /// - c lies outside W with dist(c, ∂W) ≥ R (the open ball then holds no point of W, and
+    ///   every point outside W is within √3/2 of its own voxel's centre), or
+    /// - its corners are within `limit` of one outside centre (c's own voxel's when c is outside,
+    ///   else the nearest outside one; a piece first tries its parent's): a convex distance, or
     /// - it is flat on ∂W.
     ///
-    /// It fails when c is inside W deeper than `limit`. Pieces split in two at the midpoint of
-    /// their longest edge. Sound: may reject, never wrongly accepts.
+    /// It fails when c is inside W and farther than `limit` from every outside centre. Pieces
+    /// split in two at the midpoint of their longest edge. Sound: may reject, never wrongly
+    /// accepts.
     pub fn tetrahedron_shallow(&mut self, t: [DVec3; 4], limit: f64, r_min: f64) -> bool {
-        debug_assert!(limit < REACH && r_min > 0.0);
+        debug_assert!((HALF_DIAGONAL..CENTRE_REACH).contains(&limit) && r_min > 0.0);
         let judge = |me: &Self, piece: &[DVec3; 4], r: f64, near: &Near| {
-            let (d, inside) = (near.dist, near.inside);
-            if d + r <= limit
-                || (!inside && d >= r)
+            let (d_out, _) = near.centre_distances();
+            if d_out + r <= limit
+                || (!near.inside && near.dist >= r)
                 || near.outside_hugs(piece, limit)
-                || (r > limit && me.on_boundary_plane(piece))
+                || (r > limit - HALF_DIAGONAL && me.on_boundary_plane(piece))
             {
                 Verdict::Pass
-            } else if inside && d > limit {
+            } else if near.inside && d_out > limit {
                 Verdict::Fail
             } else {
                 Verdict::Refine
@@ -438,7 +505,7 @@ impl<'c> Proximity<'c> {
     }
 }
 
-/// What [`Proximity::nearest`] finds about a point.
+/// What [`Proximity::nearest`] finds about a point p.
 #[derive(Clone, Copy)]
 struct Near {
     /// dist(p, ∂W) when below [`REACH`], else REACH.
@@ -447,36 +514,59 @@ struct Near {
     inside: bool,
     /// p's voxel.
     home: [isize; 3],
-    /// The voxel of the other class nearest to p, when within [`REACH`].
+    /// The distance from p to its own voxel's centre.
+    own_centre: f64,
+    /// The distance from p to the nearest other-class voxel's centre when below
+    /// [`CENTRE_REACH`], else CENTRE_REACH.
+    other_centre: f64,
+    /// That voxel, when its centre is within [`CENTRE_REACH`].
     other: Option<[isize; 3]>,
 }
 
 impl Near {
-    /// Whether `piece`'s corners are within `limit` of both p's voxel and the other-class voxel
-    /// (one inside cube and one outside cube: the triangle test's corner condition).
-    fn hugged<const N: usize>(&self, piece: &[DVec3; N], limit: f64) -> bool {
-        self.other.is_some_and(|o| {
-            corners_within(piece, o, limit) && corners_within(piece, self.home, limit)
+    /// (distance to an outside centre, distance to an inside centre) from p: exact for the other class, its own voxel's centre for its own class (an
+    /// upper bound, within √3/2, which `Tolerance` always admits).
+    fn centre_distances(&self) -> (f64, f64) {
+        if self.inside {
+            (self.other_centre, self.own_centre)
+        } else {
+            (self.own_centre, self.other_centre)
+        }
+    }
+
+    /// (outside voxel, inside voxel): p's own and the nearest other-class one.
+    fn pair(&self) -> Option<([isize; 3], [isize; 3])> {
+        let o = self.other?;
+        Some(if self.inside {
+            (o, self.home)
+        } else {
+            (self.home, o)
         })
     }
 
-    /// Whether `piece`'s corners are within `limit` of one outside voxel: p's own when it is
-    /// outside, else the outside voxel nearest to p (the tetrahedron test's corner condition).
+    /// Whether `piece`'s corners are within `tol.outside` of the pair's outside centre and
+    /// within `tol.inside` of its inside centre (the triangle test's corner condition).
+    fn hugged<const N: usize>(&self, piece: &[DVec3; N], tol: Tolerance) -> bool {
+        self.pair().is_some_and(|(out, ins)| {
+            corners_within(piece, out, tol.outside) && corners_within(piece, ins, tol.inside)
+        })
+    }
+
+    /// Whether `piece`'s corners are within `limit` of one outside centre: p's own voxel's when
+    /// it is outside, else the nearest outside one (the tetrahedron test's corner condition).
     fn outside_hugs<const N: usize>(&self, piece: &[DVec3; N], limit: f64) -> bool {
-        let outside = if self.inside {
-            self.other
-        } else {
-            Some(self.home)
-        };
-        outside.is_some_and(|o| corners_within(piece, o, limit))
+        self.pair()
+            .map(|(out, _)| out)
+            .or((!self.inside).then_some(self.home))
+            .is_some_and(|o| corners_within(piece, o, limit))
     }
 }
 
-/// Whether every corner of a piece is within `limit` of voxel cube `v` (then every point of the
-/// piece is: the distance to a convex set is convex).
+/// Whether every corner of a piece is within `limit` of the centre of voxel `v` (then every
+/// point of the piece is: the distance to a point is convex).
 fn corners_within<const N: usize>(piece: &[DVec3; N], v: [isize; 3], limit: f64) -> bool {
-    let limit2 = limit * limit;
-    piece.iter().all(|p| dist2_to_cube(*p, v) <= limit2)
+    let (c, limit2) = (centre(v), limit * limit);
+    piece.iter().all(|p| (*p - c).length_squared() <= limit2)
 }
 
 /// What [`Proximity::refine`] does with a piece.
@@ -558,6 +648,14 @@ mod tests {
                 let (d, inside) = prox.distance(p);
                 let f = p.floor();
                 assert_eq!(inside, cls.inside(f.x as isize, f.y as isize, f.z as isize));
+                // The nearest other-class centre, exact below CENTRE_REACH.
+                let other = prox.nearest(p).other_centre;
+                match dist_to_centre(&cls, p, !inside, CENTRE_REACH) {
+                    Some(exact) if exact < CENTRE_REACH => {
+                        assert!((other - exact).abs() < 1e-12, "{p}: {other} vs {exact}")
+                    }
+                    _ => assert_eq!(other, CENTRE_REACH, "{p}: {other}, brute force finds none"),
+                }
                 match dist_to_boundary(&cls, p, REACH) {
                     Some(exact) if exact < REACH => {
                         near += 1;
@@ -573,73 +671,115 @@ mod tests {
         }
     }
 
+    /// The tolerance volume of the defaults' radius for ε = √3/2.
+    const TOL: Tolerance = Tolerance {
+        outside: 1.732,
+        inside: 1.732,
+    };
+
+    /// Brute force: whether `p` lies in the tolerance volume.
+    fn in_volume(cls: &Classifier, p: DVec3, tol: Tolerance) -> bool {
+        dist_to_centre(cls, p, false, tol.outside).is_some()
+            && dist_to_centre(cls, p, true, tol.inside).is_some()
+    }
+
     #[test]
-    fn band_test_accepts_near_triangles_and_rejects_far_ones() {
+    fn tolerance_test_accepts_near_triangles_and_rejects_far_ones() {
         let cls = boxed();
         let mut prox = Proximity::new(&cls);
-        // On the box's top face z = 5, slightly lifted: inside the band.
+        // On the box's top face z = 5, slightly lifted: inside T.
         let near = [
             DVec3::new(1.2, 1.2, 5.3),
             DVec3::new(3.8, 1.2, 5.3),
             DVec3::new(1.2, 2.8, 4.8),
         ];
-        assert!(prox.triangle_within(near, 0.866, 0.05));
-        // One corner 0.9 above the face: outside a band of 0.866, must be refused.
+        assert!(prox.triangle_within(near, TOL, 0.05));
+        // One corner 1.4 above the face over a corner voxel: its nearest inside centre, (1.5,
+        // 1.5, 4.5), is 1.95 away, beyond 1.732: refused.
         let far = [
-            DVec3::new(1.2, 1.2, 5.9),
+            DVec3::new(1.2, 1.2, 6.4),
             DVec3::new(3.8, 1.2, 5.3),
             DVec3::new(1.2, 2.8, 5.3),
         ];
-        assert!(!prox.triangle_within(far, 0.866, 0.05));
-        // Cutting through the box's middle: deep inside, refused.
+        assert!(!in_volume(&cls, far[0], TOL));
+        assert!(!prox.triangle_within(far, TOL, 0.05));
+        // Cutting through the box's middle: its point (2.5, 2, 3.5) is 1.5 from the nearest
+        // outside centres, (2.5, 0.5, 3.5) and (2.5, 3.5, 3.5): in T, but refused by a narrower
+        // outside radius.
         let deep = [
             DVec3::new(1.5, 1.5, 3.5),
             DVec3::new(3.5, 1.5, 3.5),
             DVec3::new(2.5, 2.5, 3.5),
         ];
-        assert!(!prox.triangle_within(deep, 0.866, 0.05));
+        assert!(prox.triangle_within(deep, TOL, 0.05));
+        let narrow = Tolerance {
+            outside: 1.2,
+            ..TOL
+        };
+        assert!(!in_volume(&cls, DVec3::new(2.5, 2.0, 3.5), narrow));
+        assert!(!prox.triangle_within(deep, narrow, 0.05));
+        // The same volume holds the ε = √3/2 band about ∂W: a triangle 0.85 below the top face.
+        let below = [
+            DVec3::new(1.2, 1.2, 4.15),
+            DVec3::new(3.8, 1.2, 4.15),
+            DVec3::new(1.2, 2.8, 4.15),
+        ];
+        assert!(prox.triangle_within(below, TOL, 0.05));
     }
 
     /// Random triangles near random voxel sets: whatever the test accepts has every sampled
-    /// point within the band by brute force, and it accepts and rejects both.
+    /// point in the tolerance volume by brute force, and it accepts and rejects both; so do
+    /// narrower, lopsided volumes.
     #[test]
     fn triangle_test_is_sound_on_random_voxel_sets() {
-        let (mut accepted, mut rejected) = (0, 0);
-        for seed in 0..3 {
-            let cls = random_at([14, 14, 14], seed);
-            let mut prox = Proximity::new(&cls);
-            let mut rnd = uniform(seed + 7);
-            for _ in 0..3000 {
-                let c = DVec3::new(rnd(), rnd(), rnd()) * 14.0;
-                let size = 0.2 + 3.0 * rnd();
-                let t: [DVec3; 3] =
-                    std::array::from_fn(|_| c + (DVec3::new(rnd(), rnd(), rnd()) - 0.5) * size);
-                if !prox.triangle_within(t, 0.866, 0.05) {
-                    rejected += 1;
-                    continue;
-                }
-                accepted += 1;
-                for k in 0..300 {
-                    let p = if k < 3 {
-                        t[k]
-                    } else {
-                        simplex_point(t, &mut rnd)
-                    };
-                    assert!(
-                        dist_to_boundary(&cls, p, 0.866).is_some(),
-                        "{t:?} accepted but {p} is out of the band"
-                    );
+        for tol in [
+            TOL,
+            Tolerance {
+                outside: 1.2,
+                inside: 1.9,
+            },
+            Tolerance {
+                outside: 2.3,
+                inside: 0.9,
+            },
+        ] {
+            let (mut accepted, mut rejected) = (0, 0);
+            for seed in 0..3 {
+                let cls = random_at([14, 14, 14], seed);
+                let mut prox = Proximity::new(&cls);
+                let mut rnd = uniform(seed + 7);
+                for _ in 0..2000 {
+                    let c = DVec3::new(rnd(), rnd(), rnd()) * 14.0;
+                    let size = 0.2 + 3.0 * rnd();
+                    let t: [DVec3; 3] =
+                        std::array::from_fn(|_| c + (DVec3::new(rnd(), rnd(), rnd()) - 0.5) * size);
+                    if !prox.triangle_within(t, tol, 0.05) {
+                        rejected += 1;
+                        continue;
+                    }
+                    accepted += 1;
+                    for k in 0..300 {
+                        let p = if k < 3 {
+                            t[k]
+                        } else {
+                            simplex_point(t, &mut rnd)
+                        };
+                        assert!(
+                            in_volume(&cls, p, tol),
+                            "{tol:?}: {t:?} accepted but {p} is out of the volume"
+                        );
+                    }
                 }
             }
+            assert!(
+                accepted > 200 && rejected > 200,
+                "{tol:?}: {accepted} accepted, {rejected} rejected"
+            );
         }
-        assert!(
-            accepted > 300 && rejected > 300,
-            "{accepted} accepted, {rejected} rejected"
-        );
     }
 
-    /// Random tetrahedra: whatever the test accepts holds no sampled point of W deeper than the
-    /// limit; one reaching a box's middle is rejected; one entirely outside passes.
+    /// Random tetrahedra: whatever the test accepts has every sampled point within the limit of
+    /// an outside centre; one reaching a box's middle is rejected; one entirely outside passes.
     #[test]
     fn tetrahedron_test_is_sound_on_random_voxel_sets() {
         let (mut accepted, mut rejected) = (0, 0);
@@ -652,7 +792,7 @@ mod tests {
                 let size = 0.2 + 4.0 * rnd();
                 let t: [DVec3; 4] =
                     std::array::from_fn(|_| c + (DVec3::new(rnd(), rnd(), rnd()) - 0.5) * size);
-                if !prox.tetrahedron_shallow(t, 1.5, 0.05) {
+                if !prox.tetrahedron_shallow(t, 2.3, 0.05) {
                     rejected += 1;
                     continue;
                 }
@@ -663,13 +803,10 @@ mod tests {
                     } else {
                         simplex_point(t, &mut rnd)
                     };
-                    let f = p.floor();
-                    if cls.inside(f.x as isize, f.y as isize, f.z as isize) {
-                        assert!(
-                            dist_to_boundary(&cls, p, 1.5).is_some(),
-                            "{t:?} accepted but {p} is deeper than 1.5 inside W"
-                        );
-                    }
+                    assert!(
+                        dist_to_centre(&cls, p, false, 2.3).is_some(),
+                        "{t:?} accepted but {p} is farther than 2.3 from every outside centre"
+                    );
                 }
             }
         }
@@ -680,19 +817,20 @@ mod tests {
 
         let cls = boxed_at([9, 9, 9], [1.0, 1.0, 1.0], [8.0, 8.0, 8.0]);
         let mut prox = Proximity::new(&cls);
-        // Flat on the top face z = 8, reaching 1.2 below it: passes.
+        // Flat on the top face z = 8, reaching 1.2 below it (1.7 from the outside centres above):
+        // passes.
         let flat = [
             DVec3::new(1.5, 1.5, 8.3),
             DVec3::new(7.5, 1.5, 8.3),
             DVec3::new(1.5, 7.5, 8.3),
             DVec3::new(4.0, 4.0, 6.8),
         ];
-        assert!(prox.tetrahedron_shallow(flat, 1.5, 0.05));
+        assert!(prox.tetrahedron_shallow(flat, 2.3, 0.05));
         // The same with its apex at the box's middle, 3.5 deep: refused.
         let deep = [flat[0], flat[1], flat[2], DVec3::new(4.5, 4.5, 4.5)];
-        assert!(!prox.tetrahedron_shallow(deep, 1.5, 0.05));
+        assert!(!prox.tetrahedron_shallow(deep, 2.3, 0.05));
         // Outside the box, far from it: passes (no point of W at all).
         let away = DVec3::new(-6.0, 0.0, 0.0);
-        assert!(prox.tetrahedron_shallow(deep.map(|p| p + away), 1.5, 0.05));
+        assert!(prox.tetrahedron_shallow(deep.map(|p| p + away), 2.3, 0.05));
     }
 }

@@ -1,11 +1,12 @@
 //! Bounded simplification of the voxel boundary by edge collapses (paper section 5), with the
 //! sound checks argued in docs/design.md:
 //!
-//! - tolerance: every new triangle lies within `eps` of ∂W (adaptive pieces with exact
-//!   distances, `band::Proximity::triangle_within`), so it stays at least δ - √3/2 - eps outside the
-//!   swept volume and within eps + √3/2 + δ of it where concavities are visible;
-//! - sweep: every tetrahedron joining an old triangle around the edge to the new vertex holds no
-//!   point of W deeper than `eps_sweep` (eps_sweep + √3/2 < δ), so the surface never passes over
+//! - tolerance: every new triangle lies in the tolerance volume T, the points within
+//!   `tolerance.outside` of an outside voxel's centre and within `tolerance.inside` of an inside
+//!   one's (adaptive pieces with exact distances, `band::Proximity::triangle_within`), so it
+//!   stays at least δ - outside from the swept volume and within inside + δ + μ + 2ρ of it;
+//! - sweep: every point of the tetrahedra joining an old triangle around the edge to the new
+//!   vertex is within `sweep` < δ of an outside voxel's centre, so the surface never passes over
 //!   a point of the swept volume and every such point stays enclosed;
 //! - no self-intersection: new triangles are tested against the triangles near them (a spatial
 //!   hash) and each other, conservatively (`intersect::conflict`);
@@ -28,6 +29,7 @@ use rayon::prelude::*;
 
 use crate::mesh::classify::Classifier;
 use crate::mesh::Mesh;
+pub use band::Tolerance;
 
 pub(crate) mod band;
 mod batch;
@@ -61,10 +63,11 @@ pub(crate) fn regrow(len: usize, capacity: usize) -> usize {
 /// What the simplifier may do, grid units.
 #[derive(Clone, Copy, Debug)]
 pub struct SimplifyOptions {
-    /// Tolerance band half-width around ∂W for the output surface.
-    pub eps: f64,
-    /// Band half-width for the region swept by a collapse (must satisfy eps_sweep + √3/2 < δ).
-    pub eps_sweep: f64,
+    /// The tolerance volume every new triangle must lie in.
+    pub tolerance: Tolerance,
+    /// Every point swept by a collapse must lie within this of an outside voxel's centre (below
+    /// δ, so the sweep never passes over a point of the swept volume).
+    pub sweep: f64,
     /// Smallest piece radius the adaptive region tests refine to before they reject.
     pub min_radius: f64,
     /// Stop once the mesh has at most this many triangles (the checks always win).
@@ -73,29 +76,33 @@ pub struct SimplifyOptions {
 
 /// Smallest piece the adaptive region tests refine to before rejecting, voxels.
 const MIN_RADIUS_VOXELS: f64 = 0.05;
-/// Kept between the swept region's band and the limit δ - √3h/2, voxels.
+/// Kept between the swept region's radius and δ, voxels.
 const SWEEP_MARGIN_VOXELS: f64 = 0.05;
-/// Widest band the simplifier decides (exact distances reach 2 voxels), voxels.
-const BAND_CAP_VOXELS: f64 = band::REACH - 0.05;
+/// Largest radius the simplifier decides (exact centre distances reach 2.5 voxels), voxels.
+const RADIUS_CAP_VOXELS: f64 = band::CENTRE_REACH - 0.05;
 
 impl SimplifyOptions {
-    /// The bands for a run's parameters (world units, voxel edge `h`): eps = ε and
-    /// eps_sweep = δ - √3h/2 - 0.05h, in voxels, both clamped to what the proximity memo decides
-    /// (narrower bands stay sound). Refused unless ε + √3h/2 < δ (docs/design.md: a point within
-    /// eps of the voxel boundary is then at least δ - √3h/2 - eps from the swept volume).
+    /// The radii for a run's parameters (world units, voxel edge `h`), in voxels:
+    /// outside = inside = ε + √3h/2 (T then holds the ε-neighbourhood of ∂W: a point within ε
+    /// of a face is within ε + √3h/2 of both its voxels' centres), sweep = δ - 0.05h; each
+    /// clamped to what the proximity memo decides (smaller radii stay sound). Refused unless ε + √3h/2 < δ (docs/design.md: a
+    /// point of T is then at least δ - ε - √3h/2 from the swept volume).
     pub fn for_params(
         params: &crate::input::grid::Params,
         h: f64,
         target_triangles: usize,
     ) -> anyhow::Result<SimplifyOptions> {
-        let half_diag = 3f64.sqrt() / 2.0; // voxels
-        let band = SimplifyOptions {
-            eps: (params.epsilon / h).min(BAND_CAP_VOXELS),
-            eps_sweep: (params.delta / h - half_diag - SWEEP_MARGIN_VOXELS).min(BAND_CAP_VOXELS),
+        let outside = (params.epsilon / h + band::HALF_DIAGONAL).min(RADIUS_CAP_VOXELS);
+        let opts = SimplifyOptions {
+            tolerance: Tolerance {
+                outside,
+                inside: outside,
+            },
+            sweep: (params.delta / h - SWEEP_MARGIN_VOXELS).min(RADIUS_CAP_VOXELS),
             min_radius: MIN_RADIUS_VOXELS,
             target_triangles,
         };
-        if band.eps + half_diag >= params.delta / h || band.eps <= band.min_radius {
+        if outside >= params.delta / h || params.epsilon / h <= opts.min_radius {
             return Err(crate::error::OptionError::new(
                 crate::error::OptionKey::Epsilon,
                 format!(
@@ -105,7 +112,7 @@ impl SimplifyOptions {
             )
             .into());
         }
-        Ok(band)
+        Ok(opts)
     }
 }
 
@@ -159,7 +166,13 @@ fn simplify_in_pool(
     opts: SimplifyOptions,
     stop: &(dyn Fn() -> bool + Sync),
 ) -> Option<(Mesh, SimplifyStats)> {
-    assert!(opts.min_radius > 0.0 && opts.eps < band::REACH && opts.eps_sweep < band::REACH);
+    let radii = [opts.tolerance.outside, opts.tolerance.inside, opts.sweep];
+    assert!(
+        opts.min_radius > 0.0
+            && radii
+                .iter()
+                .all(|r| (band::HALF_DIAGONAL..band::CENTRE_REACH).contains(r))
+    );
     let t_count = mesh.triangles.len();
     let n = mesh.positions.len();
     let mut s = State::new(mesh);
@@ -243,7 +256,20 @@ mod tests {
     use super::*;
     use crate::mesh::classify::test_support::boxed;
     use crate::mesh::extract::extract;
-    use crate::simplify::band::dist_to_boundary;
+    use crate::simplify::band::dist_to_centre;
+
+    /// Brute force: whether `p` lies in the tolerance volume of `opts`.
+    fn in_volume(cls: &Classifier, p: DVec3, opts: SimplifyOptions) -> bool {
+        dist_to_centre(cls, p, false, opts.tolerance.outside).is_some()
+            && dist_to_centre(cls, p, true, opts.tolerance.inside).is_some()
+    }
+
+    /// Whether voxel (i, j, k) is inside W and farther than `opts.sweep` from every outside
+    /// voxel's centre: what no collapse may sweep over.
+    fn deep(cls: &Classifier, [i, j, k]: [isize; 3], opts: SimplifyOptions) -> bool {
+        let c = DVec3::new(i as f64, j as f64, k as f64) + 0.5;
+        cls.inside(i, j, k) && dist_to_centre(cls, c, false, opts.sweep).is_none()
+    }
 
     /// Generalized winding number of a closed mesh at `p` (solid angles, Van Oosterom and
     /// Strackee).
@@ -261,8 +287,11 @@ mod tests {
 
     fn defaults() -> SimplifyOptions {
         SimplifyOptions {
-            eps: 0.866,
-            eps_sweep: 1.5,
+            tolerance: Tolerance {
+                outside: 1.732,
+                inside: 1.732,
+            },
+            sweep: 1.9,
             min_radius: 0.05,
             target_triangles: 0,
         }
@@ -273,7 +302,17 @@ mod tests {
         let cls = boxed([8, 8, 8], [2.0, 2.0, 2.0], [6.0, 6.0, 6.0]);
         let start = extract(&cls);
         assert_eq!(start.triangles.len(), 6 * 16 * 2);
-        let (out, stats) = simplify(&start, &cls, defaults());
+        // With radius 1.2 no cut of a corner stays in T; with the default 1.732 one can (a cut
+        // plane near a corner stays within 1.732 of the outside centres beside the faces).
+        let tight = SimplifyOptions {
+            tolerance: Tolerance {
+                outside: 1.2,
+                inside: 1.2,
+            },
+            sweep: 1.2,
+            ..defaults()
+        };
+        let (out, stats) = simplify(&start, &cls, tight);
         assert_eq!(out.triangles.len(), 12, "{stats:?}");
         assert_eq!(out.positions.len(), 8);
         assert!(out.unpaired_edges().is_empty());
@@ -284,33 +323,45 @@ mod tests {
         );
     }
 
+    /// One voxel, the unit cube [1, 2]³: collapses cut it only as far as T allows (every
+    /// sampled point of every output triangle in T by brute force), more with a wider T.
     #[test]
-    fn one_voxel_keeps_its_corners_in_a_narrow_band() {
-        // Cutting a unit cube's corner moves some new triangle's points at least 1/6 inside
-        // (the shallowest cut, collapsing a face edge to its midpoint, leaves the centroid
-        // (11/6, 5/3, 4/3) 1/6 below the face x = 2): a band of 0.1 keeps all 12 triangles.
+    fn one_voxel_is_cut_only_as_far_as_the_volume_allows() {
         let cls = boxed([3, 3, 3], [1.0, 1.0, 1.0], [2.0, 2.0, 2.0]);
         let start = extract(&cls);
-        let narrow = SimplifyOptions {
-            eps: 0.1,
-            eps_sweep: 0.6,
-            min_radius: 0.01,
-            target_triangles: 0,
-        };
-        let (out, _) = simplify(&start, &cls, narrow);
-        assert_eq!(out.triangles.len(), 12);
-        assert!((out.volume() - 1.0).abs() < 1e-12);
-        // A band of 0.3 admits that cut (every point of its triangles is within 1/6 of the
-        // surface); every point of a unit cube is within 1/2 of its surface, so the swept-region
-        // test cannot object: corners go, the mesh stays closed.
-        let (out, stats) = simplify(&start, &cls, SimplifyOptions { eps: 0.3, ..narrow });
-        assert!(out.triangles.len() < 12, "{stats:?}");
-        assert!(out.unpaired_edges().is_empty());
-        assert!(
-            out.volume() > 0.25 && out.volume() < 1.0,
-            "{}",
-            out.volume()
-        );
+        let mut rng = fastrand::Rng::with_seed(3);
+        let mut counts = Vec::new();
+        for r in [0.87, 1.05] {
+            let opts = SimplifyOptions {
+                tolerance: Tolerance {
+                    outside: r,
+                    inside: r,
+                },
+                sweep: r,
+                min_radius: 0.01,
+                target_triangles: 0,
+            };
+            let (out, stats) = simplify(&start, &cls, opts);
+            assert!(out.unpaired_edges().is_empty());
+            assert!(out.volume() > 0.0 && out.volume() < 1.0 + 1e-12);
+            for t in &out.triangles {
+                let p = t.map(|v| out.positions[v as usize]);
+                for _ in 0..500 {
+                    let (a, b) = (rng.f64(), rng.f64());
+                    let (a, b) = if a + b > 1.0 {
+                        (1.0 - a, 1.0 - b)
+                    } else {
+                        (a, b)
+                    };
+                    let x = p[0] + (p[1] - p[0]) * a + (p[2] - p[0]) * b;
+                    assert!(in_volume(&cls, x, opts), "r {r}: {x} out of T, {stats:?}");
+                }
+            }
+            counts.push(out.triangles.len());
+        }
+        // The middle of the cube is exactly 1 from six outside centres: radius 1.05 lets the cube
+        // go down to a tetrahedron, 0.87 does not.
+        assert!(counts[0] > counts[1] && counts[1] == 4, "{counts:?}");
     }
 
     /// Review finding: small isolated components collapsed to two coincident triangles of
@@ -532,15 +583,13 @@ mod tests {
             assert!(out.unpaired_edges().is_empty());
             assert!(out.triangles.len() * 2 < start.triangles.len(), "{stats:?}");
             assert!(stats.rejected_intersection > 0, "{stats:?}");
-            // Every vertex and triangle centroid within the band; every voxel centre of W deeper
-            // than eps_sweep still enclosed (winding number 1).
+            // Every vertex and triangle centroid in the tolerance volume; every voxel centre of W
+            // farther than the sweep radius from the outside centres still enclosed (winding
+            // number 1).
             for t in &out.triangles {
                 let p = t.map(|v| out.positions[v as usize]);
                 for x in [p[0], (p[0] + p[1] + p[2]) / 3.0] {
-                    assert!(
-                        dist_to_boundary(&cls, x, defaults().eps).is_some(),
-                        "{x} off band"
-                    );
+                    assert!(in_volume(&cls, x, defaults()), "{x} out of the volume");
                 }
             }
             let mut deep = 0;
@@ -548,7 +597,7 @@ mod tests {
                 for j in 0..20 {
                     for i in 0..20 {
                         let c = DVec3::new(i as f64, j as f64, k as f64) + 0.5;
-                        if cls.inside(i, j, k) && dist_to_boundary(&cls, c, 1.5).is_none() {
+                        if self::deep(&cls, [i, j, k], defaults()) {
                             deep += 1;
                             let w = winding_number(&out, c);
                             assert!((w - 1.0).abs() < 1e-6, "seed {seed}: {c} has winding {w}");
@@ -611,8 +660,8 @@ mod tests {
                 let p = t.map(|v| out.positions[v as usize]);
                 for x in [p[0], (p[0] + p[1] + p[2]) / 3.0] {
                     assert!(
-                        dist_to_boundary(&cls, x, defaults().eps).is_some() || on_joined_face(x),
-                        "seed {seed}: {x} neither in the band nor on a joined face"
+                        in_volume(&cls, x, defaults()) || on_joined_face(x),
+                        "seed {seed}: {x} neither in the tolerance volume nor on a joined face"
                     );
                 }
             }
@@ -620,7 +669,7 @@ mod tests {
                 for j in 0..20 {
                     for i in 0..20 {
                         let c = DVec3::new(i as f64, j as f64, k as f64) + 0.5;
-                        if cls.inside(i, j, k) && dist_to_boundary(&cls, c, 1.5).is_none() {
+                        if deep(&cls, [i, j, k], defaults()) {
                             let w = winding_number(&out, c);
                             assert!((w - 1.0).abs() < 1e-6, "seed {seed}: {c} has winding {w}");
                         }

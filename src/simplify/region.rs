@@ -317,26 +317,26 @@ fn band_and_sweep(
     old: &[[DVec3; 3]],
     new: &[([u32; 3], [DVec3; 3])],
 ) -> Result<(), Reject> {
-    // Tolerance band for the new surface; the new vertex first, the likeliest to be out.
-    let (eps, r_min) = (opts.eps, opts.min_radius);
-    if prox.distance(v).0 > eps
+    // The tolerance volume for the new surface; the new vertex first, the likeliest to be out.
+    let (tol, r_min) = (opts.tolerance, opts.min_radius);
+    if !prox.point_within(v, tol)
         || !new
             .iter()
-            .all(|(_, q)| prox.triangle_within(*q, eps, r_min))
+            .all(|(_, q)| prox.triangle_within(*q, tol, r_min))
     {
         return Err(Reject::Band);
     }
-    // The region swept by the collapse: the tetrahedra (old triangle, v) must hold no point of W
-    // deeper than eps_sweep, hence no point of the swept volume. A tetrahedron with v at a
-    // corner of its triangle is that flat triangle, which holds no point of W deeper than
-    // eps <= eps_sweep: every live triangle is within eps of ∂W (a checked one) or an unchanged
-    // face of the joined voxels, which lies on a voxel outside W (depth 0).
-    let es = opts.eps_sweep;
+    // The region swept by the collapse: every point of the tetrahedra (old triangle, v) must be
+    // within `sweep` < δ of an outside voxel's centre, hence outside the swept volume. A
+    // tetrahedron with v at a corner of its triangle is that flat triangle, which passes when
+    // tol.outside <= sweep: every live triangle lies in T (a checked one) or is an unchanged face
+    // of the joined voxels, on a voxel outside W (within √3/2 of its centre).
+    let sweep = opts.sweep;
     for p in old {
-        if eps <= es && p.contains(&v) {
+        if tol.outside <= sweep && p.contains(&v) {
             continue;
         }
-        if !prox.tetrahedron_shallow([p[0], p[1], p[2], v], es, r_min) {
+        if !prox.tetrahedron_shallow([p[0], p[1], p[2], v], sweep, r_min) {
             return Err(Reject::Sweep);
         }
     }

@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use crate::error::InputError;
-use crate::input::grid::{Accuracy, Overrides};
+use crate::input::grid::{Accuracy, Overrides, Radii};
 use crate::io::exr_depth::{depth_file_name, Side};
 use crate::io::mesh_formats::MeshFormat;
 use crate::pipeline::{self, RunOptions};
@@ -102,6 +102,7 @@ pub fn names_json() -> serde_json::Value {
         "job_keys": JOB_KEY_LIST,
         "motions": [Motion::Screw.name(), Motion::Discrete.name()],
         "classify_methods": [Method::Auto.name(), Method::Flood.name(), Method::Axes.name()],
+        "radii": [Radii::Exact.name(), Radii::Paper.name()],
         "states": State::ALL.map(State::as_str),
         "finished_states": State::ALL.into_iter().filter(|s| s.is_finished()).map(State::as_str).collect::<Vec<_>>(),
     })
@@ -334,10 +335,12 @@ pub struct JobOptions {
     pub motion: Option<Motion>,
     /// "auto" (the default), "flood" or "axes": how voxels are classified.
     pub classify: Option<Method>,
+    /// "exact" (the default) or "paper": δ and ε where the job gives neither.
+    pub radii: Option<Radii>,
 }
 
 /// The keys of `job.json`, as `JobOptions` names its fields.
-pub const JOB_KEY_LIST: [&str; 11] = [
+pub const JOB_KEY_LIST: [&str; 12] = [
     "resolution",
     "tolerance",
     "delta",
@@ -349,6 +352,7 @@ pub const JOB_KEY_LIST: [&str; 11] = [
     "also",
     "motion",
     "classify",
+    "radii",
 ];
 
 /// Parse `job.json` bytes; `path` names the file in errors (with serde_json's line and column).
@@ -396,6 +400,7 @@ impl JobOptions {
             overrides: Overrides {
                 delta: self.delta,
                 epsilon: self.epsilon,
+                radii: self.radii.unwrap_or_default(),
             },
             overwrite: true,
             target_triangles: self.target_triangles.unwrap_or(0),
@@ -466,6 +471,7 @@ mod tests {
                 "also" => "[\"stl\"]",
                 "motion" => "\"discrete\"",
                 "classify" => "\"axes\"",
+                "radii" => "\"paper\"",
                 _ => "1",
             };
             let json = format!("{{\"{key}\": {value}}}");
