@@ -210,7 +210,9 @@ fn check_simplified(
         &tris,
         visible,
         &mut Rng::with_seed(seed),
-        opts.tolerance.outside.max(opts.tolerance.inside),
+        // The radius the report's clearance and bound are derived from, ε + √3h/2 (not the
+        // simplifier's own figure: a wrong one there must fail here).
+        input.params.epsilon / input.grid.h + 3f64.sqrt() / 2.0,
     );
     assert!(stats.collapses > 0);
     (start.triangles.len(), out.triangles.len())

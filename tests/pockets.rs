@@ -329,17 +329,33 @@ fn random_closed_parts_stay_enclosed_and_within_the_bound() {
                 );
             }
         }
-        let worst = face_points(&mesh)
+        let dists: Vec<f64> = face_points(&mesh)
             .iter()
             .map(|p| {
                 tris.iter()
                     .map(|t| dist_triangle(*p, *t))
                     .fold(f64::INFINITY, f64::min)
             })
-            .fold(0.0, f64::max);
+            .collect();
+        let worst = dists.iter().fold(0.0, |a: f64, b| a.max(*b));
         assert!(
             worst <= bound,
-            "case {case}: a vertex {worst} from the posed part, bound {bound}"
+            "case {case}: a mesh point {worst} from the posed part, bound {bound}"
+        );
+        // The clearance the report states, δ - ε - √3h/2, with the default (exact) radii 0.07h.
+        let h = input.grid.h;
+        let clearance = input.params.delta - input.params.epsilon - 3f64.sqrt() / 2.0 * h;
+        assert!((clearance / h - 0.07).abs() < 1e-9);
+        let nearest = dists.iter().fold(f64::INFINITY, |a, b| a.min(*b));
+        assert!(
+            nearest >= clearance - 1e-9 * h,
+            "case {case}: a mesh point only {nearest} from the posed part, clearance {clearance}"
+        );
+        eprintln!(
+            "case {case}: deviation {:.3}h (bound {:.3}h), nearest {:.3}h",
+            worst / h,
+            bound / h,
+            nearest / h
         );
         assert!(checked > 0);
     }

@@ -297,6 +297,35 @@ mod tests {
         }
     }
 
+    /// The radii the report's clearance and bound are derived from (docs/design.md).
+    #[test]
+    fn radii_follow_the_parameters() {
+        use crate::input::grid::{fit_grid, Accuracy, Overrides, Radii};
+        for radii in [Radii::Exact, Radii::Paper] {
+            let overrides = Overrides {
+                radii,
+                ..Overrides::default()
+            };
+            let (g, p) = fit_grid(
+                DVec3::ZERO,
+                DVec3::ONE,
+                Accuracy::Resolution(64),
+                overrides,
+                0.0,
+            )
+            .unwrap();
+            let o = SimplifyOptions::for_params(&p, g.h, 0).unwrap();
+            let r = p.epsilon / g.h + 3f64.sqrt() / 2.0;
+            assert!((o.tolerance.outside - r).abs() < 1e-12, "{radii:?} {o:?}");
+            assert!((o.tolerance.inside - r).abs() < 1e-12, "{radii:?} {o:?}");
+            assert!(
+                (o.sweep - (p.delta / g.h - 0.05)).abs() < 1e-12,
+                "{radii:?} {o:?}"
+            );
+            assert!(o.tolerance.outside < p.delta / g.h && o.tolerance.outside <= o.sweep);
+        }
+    }
+
     #[test]
     fn a_block_of_voxels_simplifies_to_a_box_of_twelve_triangles() {
         let cls = boxed([8, 8, 8], [2.0, 2.0, 2.0], [6.0, 6.0, 6.0]);
