@@ -193,7 +193,7 @@ struct WatchArgs {
     /// tolerance, and for drops [default: 256].
     #[arg(long, value_name = "N", conflicts_with = "tolerance")]
     resolution: Option<u32>,
-    /// Default error bound ε_global in world units (instead of --resolution).
+    /// Default stated bound in world units, as `run --tolerance` (instead of --resolution).
     #[arg(long, value_name = "T", allow_negative_numbers = true)]
     tolerance: Option<f64>,
     /// Inputs of one job larger than this in all are refused before they are parsed.

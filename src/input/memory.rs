@@ -20,7 +20,7 @@
 //! boundary per pixel can need more, and a run just under the limit may still fail late.
 
 use crate::error::{OptionError, OptionKey};
-use crate::input::grid::{Grid, K_GLOBAL};
+use crate::input::grid::Grid;
 
 /// Program, thread stacks, inputs and buffers outside the grid-sized structures.
 const BASE_BYTES: f64 = 32.0 * 1048576.0;
@@ -100,12 +100,14 @@ fn cgroup_headroom() -> Option<f64> {
 }
 
 /// Refuse a run whose estimate exceeds `available` bytes, naming the estimate and the largest
-/// resolution (and the matching tolerance) that would fit.
+/// resolution (and the matching tolerance: `tolerance_voxels` voxel edges, what a tolerance is
+/// divided by for the voxel size) that would fit.
 pub fn check(
     grid: &Grid,
     keep_start_mesh: bool,
     flood: bool,
     available: Option<f64>,
+    tolerance_voxels: f64,
 ) -> Result<(), OptionError> {
     let need = estimate(grid, keep_start_mesh, flood);
     let Some(avail) = available else {
@@ -141,7 +143,7 @@ pub fn check(
         grid.dims[2],
         TRIANGLES_PER_PIXEL * pixels(grid),
         gib(avail),
-        K_GLOBAL * grid.h * n as f64 / fit as f64,
+        tolerance_voxels * grid.h * n as f64 / fit as f64,
     )))
 }
 
@@ -171,7 +173,7 @@ mod tests {
         assert!(estimate(&grid(1024), false, true) > a);
         let avail = 4e9;
         for flood in [false, true] {
-            let e = check(&grid(12288), false, flood, Some(avail)).unwrap_err();
+            let e = check(&grid(12288), false, flood, Some(avail), 3.5).unwrap_err();
             let fit: u32 = e
                 .worded(OptionKey::flag)
                 .split("--resolution ")
@@ -181,8 +183,17 @@ mod tests {
                 .expect("a resolution in the message");
             assert!(estimate(&grid(fit), false, flood) <= avail, "{}", e);
             assert!(estimate(&grid(fit + 2), false, flood) > avail, "{}", e);
-            assert!(check(&grid(256), false, flood, Some(avail)).is_ok());
-            assert!(check(&grid(12288), false, flood, None).is_ok());
+            // The tolerance named gives that resolution's voxel: 3.5 voxel edges of 1/fit.
+            let tolerance: f64 = e
+                .worded(OptionKey::flag)
+                .split("--tolerance ")
+                .nth(1)
+                .and_then(|s| s.split(' ').next())
+                .and_then(|s| s.parse().ok())
+                .expect("a tolerance in the message");
+            assert!((tolerance * fit as f64 / 3.5 - 1.0).abs() < 1e-3, "{}", e);
+            assert!(check(&grid(256), false, flood, Some(avail), 3.5).is_ok());
+            assert!(check(&grid(12288), false, flood, None, 3.5).is_ok());
         }
     }
 }

@@ -162,6 +162,7 @@ pub fn prepare(opts: &RunOptions) -> anyhow::Result<Prepared> {
             opts.keep_start_mesh,
             classify.flood,
             crate::input::memory::available(),
+            opts.overrides.radii.k_tolerance() + input.motion.mu / input.grid.h,
         )?;
     }
     Ok(Prepared {
