@@ -14,6 +14,7 @@ use sweptvol::input::grid::{Accuracy, Overrides, Radii};
 use sweptvol::input::motion::Motion;
 use sweptvol::io::mesh_formats::MeshFormat;
 use sweptvol::mesh::classify::Method;
+use sweptvol::pipeline::shard::{self, ShardId};
 use sweptvol::pipeline::{self, RunOptions};
 use sweptvol::sweep::backend::{Backend, BackendChoice};
 use sweptvol::sweep::Observer;
@@ -35,6 +36,12 @@ struct Cli {
 enum Command {
     /// Sweep a glTF generator along a trajectory CSV and write the six depth images and a report.
     Run(RunArgs),
+    /// Sweep one shard of a job (its share of the poses, by posed triangles) into partial depth
+    /// images in --out: `run`'s options plus --shard I/N. For a cluster: see `cluster submit`.
+    Sweep(SweepArgs),
+    /// Merge a job's shards (every shard-*.json of one job in the --from folders, checked
+    /// complete and alike) and write what `run` writes: the same bytes.
+    Mesh(MeshArgs),
     /// Watch a folder for jobs (job folders and dropped .glb + .csv pairs) and run them; see
     /// docs/exchange-protocol.md.
     Watch(WatchArgs),
@@ -311,6 +318,34 @@ struct RunArgs {
     quiet: bool,
 }
 
+#[derive(Args)]
+struct SweepArgs {
+    /// Which shard: I/N, 1 <= I <= N (SLURM: $SLURM_ARRAY_TASK_ID/N with --array=1-N).
+    #[arg(long, value_name = "I/N")]
+    shard: ShardId,
+    #[command(flatten)]
+    run: RunArgs,
+}
+
+#[derive(Args)]
+struct MeshArgs {
+    /// Folders holding the job's shards (`sweep --out`); one job's shards may be spread over several.
+    #[arg(long, value_name = "DIR", num_args = 1.., required = true)]
+    from: Vec<PathBuf>,
+    /// Output folder (created if missing).
+    #[arg(long, value_name = "DIR")]
+    out: PathBuf,
+    /// Output file stem [default: the job's --name, else the trajectory's file stem].
+    #[arg(long)]
+    name: Option<String>,
+    /// Replace existing outputs.
+    #[arg(long)]
+    overwrite: bool,
+    /// No progress bar and only warnings and errors in the log.
+    #[arg(long, short)]
+    quiet: bool,
+}
+
 /// Shows poses done on a terminal progress bar.
 struct Bar {
     bar: ProgressBar,
@@ -329,14 +364,13 @@ impl Observer for Bar {
     }
 }
 
-fn run(args: RunArgs) -> anyhow::Result<()> {
-    let accuracy = Accuracy::choose(args.resolution, args.tolerance, Accuracy::DEFAULT);
-    let opts = RunOptions {
-        generator: args.generator,
-        trajectory: args.trajectory,
-        out_dir: args.out,
-        name: args.name,
-        accuracy,
+fn run_options(args: &RunArgs) -> RunOptions {
+    RunOptions {
+        generator: args.generator.clone(),
+        trajectory: args.trajectory.clone(),
+        out_dir: args.out.clone(),
+        name: args.name.clone(),
+        accuracy: Accuracy::choose(args.resolution, args.tolerance, Accuracy::DEFAULT),
         overrides: Overrides {
             delta: args.delta,
             epsilon: args.epsilon,
@@ -349,17 +383,23 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
         check_memory: !args.no_memory_check,
         motion: args.motion.into(),
         classify: args.classify.into(),
-    };
-    // Inputs first: a bad file is reported before any GPU start-up.
-    let job = pipeline::prepare(&opts)?;
-    let backend = Backend::acquire(args.backend.into())?;
+    }
+}
+
+/// The backend asked for; a fallback to the CPU is logged unless `quiet` (a successful quiet
+/// run prints nothing).
+fn acquire_backend(choice: BackendArg, quiet: bool) -> anyhow::Result<Backend> {
+    let backend = Backend::acquire(choice.into())?;
     if let Backend::Cpu { reason } = &backend {
-        // Under --quiet a successful run prints nothing, so the fallback is only logged.
-        if matches!(args.backend, BackendArg::Auto) && !args.quiet {
+        if matches!(choice, BackendArg::Auto) && !quiet {
             tracing::warn!("{reason}");
         }
     }
-    let bar = if args.quiet {
+    Ok(backend)
+}
+
+fn progress_bar(quiet: bool) -> Bar {
+    let bar = if quiet {
         ProgressBar::hidden()
     } else {
         ProgressBar::new(0).with_style(
@@ -369,12 +409,25 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
             .expect("progress template"),
         )
     };
-    let observer = Bar {
+    Bar {
         bar,
         poses: AtomicU64::new(0),
-    };
+    }
+}
+
+fn run(args: RunArgs) -> anyhow::Result<()> {
+    let opts = run_options(&args);
+    // Inputs first: a bad file is reported before any GPU start-up.
+    let job = pipeline::prepare(&opts)?;
+    let backend = acquire_backend(args.backend, args.quiet)?;
+    let observer = progress_bar(args.quiet);
     let report = pipeline::execute(&job, &backend, &observer)?;
     observer.bar.finish_and_clear();
+    log_done(&report, &opts.out_dir);
+    Ok(())
+}
+
+fn log_done(report: &pipeline::Report, out: &std::path::Path) {
     let t = &report.timings;
     tracing::info!(
         "done: {} posed triangles in {:.2} s ({:.3e}/s) on {}; wrote {} files to {}",
@@ -383,8 +436,41 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
         t.posed_triangles_per_second,
         report.backend,
         report.outputs.len(),
-        opts.out_dir.display()
+        out.display()
     );
+}
+
+fn sweep_shard(args: SweepArgs) -> anyhow::Result<()> {
+    let opts = run_options(&args.run);
+    let backend = acquire_backend(args.run.backend, args.run.quiet)?;
+    let observer = progress_bar(args.run.quiet);
+    match shard::sweep_shard(&opts, args.shard, &backend, &observer)? {
+        shard::ShardOutcome::Swept(m) => {
+            observer.bar.finish_and_clear();
+            tracing::info!(
+                "shard {}/{}: {} poses, {} posed triangles in {:.2} s on {}; wrote {} and its manifest to {}",
+                m.shard.index,
+                m.shard.count,
+                m.poses,
+                m.posed_triangles,
+                m.sweep_seconds,
+                m.backend,
+                m.data,
+                opts.out_dir.display()
+            );
+        }
+        shard::ShardOutcome::AlreadyDone(path) => tracing::info!(
+            "{} is a finished shard of this job (same inputs and options): kept, nothing swept",
+            path.display()
+        ),
+    }
+    Ok(())
+}
+
+fn mesh(args: MeshArgs) -> anyhow::Result<()> {
+    let (job, swept) = shard::merge(&args.from, args.out.clone(), args.name, args.overwrite)?;
+    let report = pipeline::finish(&job, swept, &sweptvol::sweep::Silent)?;
+    log_done(&report, &args.out);
     Ok(())
 }
 
@@ -476,6 +562,8 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let quiet = match &cli.command {
         Command::Run(a) => a.quiet,
+        Command::Sweep(a) => a.run.quiet,
+        Command::Mesh(a) => a.quiet,
         Command::Watch(a) => a.quiet,
         Command::Verify(a) => a.quiet || a.json,
         Command::Protocol => true,
@@ -492,6 +580,8 @@ fn main() -> ExitCode {
         .init();
     let result = match cli.command {
         Command::Run(args) => run(args).map(|()| ExitCode::SUCCESS),
+        Command::Sweep(args) => sweep_shard(args).map(|()| ExitCode::SUCCESS),
+        Command::Mesh(args) => mesh(args).map(|()| ExitCode::SUCCESS),
         Command::Watch(args) => watch(args).map(|()| ExitCode::SUCCESS),
         Command::Verify(args) => verify(args),
         Command::Protocol => {

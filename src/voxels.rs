@@ -35,6 +35,15 @@ impl VoxelBits {
         VoxelBits { dims, words, data }
     }
 
+    /// The words, rows along x in (j, k) order (the layout [`Self::from_words`] takes).
+    pub fn words_raw(&self) -> &[u64] {
+        &self.data
+    }
+
+    pub fn words_raw_mut(&mut self) -> &mut [u64] {
+        &mut self.data
+    }
+
     /// Row index of (j, k).
     pub fn row_index(&self, j: usize, k: usize) -> usize {
         k * self.dims[1] + j

@@ -42,7 +42,8 @@ pub const MIN_RESOLUTION: u32 = 16;
 const SQRT_3: f64 = 1.732_050_807_568_877_2;
 
 /// How the user picks the voxel size.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum Accuracy {
     /// Voxels along the box's longest edge.
     Resolution(u32),
@@ -117,7 +118,7 @@ impl Radii {
 }
 
 /// Optional overrides of δ and ε (world units), and the rule for those not given.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, serde::Deserialize)]
 pub struct Overrides {
     pub delta: Option<f64>,
     pub epsilon: Option<f64>,
@@ -125,7 +126,7 @@ pub struct Overrides {
 }
 
 /// The axis-aligned voxel grid. Invariant: h > 0, every dim >= 1.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, serde::Deserialize)]
 pub struct Grid {
     /// World position of the grid's min corner.
     pub origin: [f64; 3],

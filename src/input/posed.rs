@@ -1,6 +1,7 @@
 //! From parsed inputs to the sweep's input: which poses move which part, the grid around all
 //! posed geometry, pose matrices in grid units, and the rounding term that keeps f32 honest.
 
+use std::ops::Range;
 use std::path::Path;
 
 use glam::{DMat4, DVec3, Vec3};
@@ -79,6 +80,53 @@ impl SweepInput {
             .iter()
             .map(|p| p.tri_count as u64 * p.pose_count as u64)
             .sum()
+    }
+
+    /// Shard `index` of `count`'s share of the poses, one range of pose indices per part: the
+    /// posed triangles, taken in order (part by part, pose by pose), are cut into `count` runs
+    /// of equal length, and a pose goes to the run where its first posed triangle falls. Every
+    /// pose lands in exactly one shard, and the shards' work differs by at most one pose's
+    /// triangles (plus rounding).
+    pub fn shard_windows(&self, index: u32, count: u32) -> Vec<Range<u64>> {
+        assert!(index < count);
+        let total = self.posed_triangles() as u128;
+        let cut = |i: u32| total * i as u128 / count as u128; // posed triangles before shard i
+        let (lo, hi) = (cut(index), cut(index + 1));
+        let mut before = 0u128; // posed triangles of the parts before this one
+        self.parts
+            .iter()
+            .map(|p| {
+                let (t, n) = (p.tri_count as u128, p.pose_count as u64);
+                // Pose j starts at before + j·t: the first j with that ≥ x is ⌈(x - before)/t⌉.
+                let first = |x: u128| -> u64 {
+                    if t == 0 {
+                        return if x <= before { 0 } else { n };
+                    }
+                    (x.saturating_sub(before).div_ceil(t)).min(n as u128) as u64
+                };
+                let w = first(lo)..first(hi);
+                before += t * n as u128;
+                w
+            })
+            .collect()
+    }
+
+    /// The same job restricted to `windows` (from [`Self::shard_windows`]): the grid, radii,
+    /// rounding term and motion stay those of the whole job, so the shards' images merge into
+    /// exactly the whole job's.
+    pub fn restricted(&self, windows: Vec<Range<u64>>) -> SweepInput {
+        let mut parts = self.parts.clone();
+        let mut pose_start = 0u32;
+        for (p, w) in parts.iter_mut().zip(&windows) {
+            p.pose_start = pose_start;
+            p.pose_count = (w.end - w.start) as u32;
+            pose_start += p.pose_count;
+        }
+        SweepInput {
+            poses: self.poses.windowed(windows),
+            parts,
+            ..self.clone()
+        }
     }
 }
 

@@ -47,6 +47,10 @@ pub struct PoseSource {
     /// World units to grid units.
     to_grid: DMat4,
     parts: Vec<PartMotion>,
+    /// Per part, the poses this source hands out (a shard's share, `pipeline::shard`): index i
+    /// of [`Self::fill`] and [`Self::grid_pose`] is pose `window.start + i` of the part. None:
+    /// all of them.
+    windows: Option<Vec<Range<u64>>>,
 }
 
 /// The row-major 4x4 array of `a` (its last row is 0 0 0 1 for an affine pose).
@@ -92,17 +96,47 @@ impl PoseSource {
                 }
             })
             .collect();
-        PoseSource { to_grid, parts }
+        PoseSource {
+            to_grid,
+            parts,
+            windows: None,
+        }
     }
 
-    /// Poses of part `part`: its rows and the sub-poses between them.
+    /// The same poses restricted to `windows` (one range of pose indices per part, within its
+    /// poses): what one shard of a job sweeps. [`Self::max_over`] still covers every pose.
+    pub fn windowed(&self, windows: Vec<Range<u64>>) -> PoseSource {
+        assert_eq!(windows.len(), self.parts.len());
+        for (part, w) in windows.iter().enumerate() {
+            assert!(
+                w.start <= w.end && w.end <= self.parts[part].count(),
+                "{w:?}"
+            );
+        }
+        PoseSource {
+            windows: Some(windows),
+            ..self.clone()
+        }
+    }
+
+    /// Poses of part `part` this source hands out: its rows and the sub-poses between them, or
+    /// its window's share of them.
     pub fn count(&self, part: usize) -> u64 {
-        self.parts[part].count()
+        match &self.windows {
+            Some(w) => w[part].end - w[part].start,
+            None => self.parts[part].count(),
+        }
     }
 
     /// Pose `index` of part `part` in grid units, f64: a row's matrix as given, or the grid map
     /// times the screw at s = step/k.
     pub fn grid_pose(&self, part: usize, index: u64) -> DMat4 {
+        assert!(
+            index < self.count(part),
+            "pose {index} of {}",
+            self.count(part)
+        );
+        let index = index + self.windows.as_ref().map_or(0, |w| w[part].start);
         let p = &self.parts[part];
         if p.intervals.is_empty() {
             return p.rows[index as usize];

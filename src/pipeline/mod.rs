@@ -9,6 +9,7 @@ use anyhow::{bail, Context};
 
 mod outputs;
 mod report;
+pub mod shard;
 
 pub use outputs::{
     output_paths, output_stem, OutputPaths, MESH_SUFFIX, REPORT_SUFFIX, START_MESH_SUFFIX,
@@ -21,6 +22,7 @@ pub use report::{
 use outputs::refuse_outputs_on_inputs;
 use report::{HAUSDORFF_SCOPE, HAUSDORFF_SCOPE_FLOOD};
 
+use crate::depth::DepthImages;
 use crate::depth::AXIS_NAMES;
 use crate::error::{OptionError, OptionKey};
 use crate::input::grid::{Accuracy, Overrides};
@@ -37,6 +39,7 @@ use crate::mesh::Mesh;
 use crate::simplify::{simplify_until, SimplifyOptions};
 use crate::sweep::backend::Backend;
 use crate::sweep::{Cancelled, Observer};
+use crate::voxels::VoxelBits;
 
 /// What `sweptvol run` was asked to do.
 #[derive(Clone, Debug)]
@@ -124,7 +127,6 @@ pub struct Prepared {
 
 /// Read and check the inputs and build the sweep input. Writes nothing.
 pub fn prepare(opts: &RunOptions) -> anyhow::Result<Prepared> {
-    let t0 = Instant::now();
     let outputs = output_paths(opts)?;
     refuse_outputs_on_inputs(opts, &outputs.all())?;
     if !opts.overwrite {
@@ -139,6 +141,12 @@ pub fn prepare(opts: &RunOptions) -> anyhow::Result<Prepared> {
             .into());
         }
     }
+    build(opts, outputs)
+}
+
+/// [`prepare`] without looking at the outputs (a shard writes its own files).
+fn build(opts: &RunOptions, outputs: OutputPaths) -> anyhow::Result<Prepared> {
+    let t0 = Instant::now();
     let generator = gltf_in::read_generator(&opts.generator)?;
     let traj = trajectory::read_trajectory(&opts.trajectory)?;
     for w in &generator.warnings {
@@ -177,14 +185,33 @@ pub fn prepare(opts: &RunOptions) -> anyhow::Result<Prepared> {
     })
 }
 
-/// Sweep a prepared job and write its outputs.
+/// What the sweep hands the mesh stage: the six depth images, the offset's reach where the
+/// classification floods, and where and how long the sweep ran. One machine's sweep
+/// ([`sweep`]) or the merge of a job's shards (`shard::merge`) give the same images.
+pub struct Swept {
+    pub images: DepthImages,
+    pub reach: Option<VoxelBits>,
+    /// The backend's description (`Backend::describe`), or the shards' backends.
+    pub backend: String,
+    /// Seconds of sweeping (over all shards for a merge).
+    pub seconds: f64,
+}
+
+/// Sweep a prepared job and write its outputs: [`sweep`] then [`finish`].
 pub fn execute(
     job: &Prepared,
     backend: &Backend,
     observer: &dyn Observer,
 ) -> anyhow::Result<Report> {
-    let (opts, input) = (&job.opts, &job.input);
-    let t_setup = Instant::now();
+    let swept = sweep(job, backend, observer)?;
+    finish(job, swept, observer)
+}
+
+/// Render every posed triangle of `job.input` (all of the job's poses, or one shard's share)
+/// into the depth images, and the reach where the job floods.
+pub fn sweep(job: &Prepared, backend: &Backend, observer: &dyn Observer) -> anyhow::Result<Swept> {
+    let input = &job.input;
+    let t0 = Instant::now();
     tracing::info!(
         "grid {}x{}x{} voxels of {:.6} (n = {}); {} posed triangles on {}",
         input.grid.dims[0],
@@ -204,7 +231,24 @@ pub fn execute(
     } else {
         (backend.sweep(input, observer)?, None)
     };
+    Ok(Swept {
+        images,
+        reach,
+        backend: backend.describe(),
+        seconds: t0.elapsed().as_secs_f64(),
+    })
+}
+
+/// Classify, extract, simplify and write the outputs of a job whose images are swept.
+pub fn finish(job: &Prepared, swept: Swept, observer: &dyn Observer) -> anyhow::Result<Report> {
+    let (opts, input) = (&job.opts, &job.input);
     let t_sweep = Instant::now();
+    let Swept {
+        images,
+        reach,
+        backend,
+        seconds: sweep_secs,
+    } = swept;
 
     checkpoint(observer, "classify")?;
     tracing::info!("classifying voxels and extracting the boundary mesh");
@@ -363,7 +407,6 @@ pub fn execute(
     }
     let t_write = Instant::now();
 
-    let sweep_secs = secs(t_setup, t_sweep);
     let report = Report {
         sweptvol_version: env!("CARGO_PKG_VERSION").into(),
         inputs: InputsReport {
@@ -394,7 +437,7 @@ pub fn execute(
         },
         motion: input.motion.clone(),
         classification,
-        backend: backend.describe(),
+        backend,
         counts: CountsReport {
             triangles: input.triangles.len() as u64,
             poses: crate::sweep::total_poses(input),
@@ -408,7 +451,7 @@ pub fn execute(
             mesh: secs(t_sweep, t_extract),
             simplify: secs(t_extract, t_mesh),
             write_outputs: secs(t_mesh, t_write),
-            total: job.read_secs + job.setup_secs + secs(t_setup, Instant::now()),
+            total: job.read_secs + job.setup_secs + sweep_secs + secs(t_sweep, Instant::now()),
             posed_triangles_per_second: input.posed_triangles() as f64 / sweep_secs.max(1e-9),
         },
         outputs: job.outputs.all(),

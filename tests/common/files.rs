@@ -68,35 +68,49 @@ pub fn verify_args(g: &Path, t: &Path, m: &Path, extra: &[&str]) -> Vec<String> 
 /// A .glb with one node "part" holding one indexed triangle primitive (u32 indices); the
 /// accessor's min and max are the positions' box.
 pub fn glb(positions: &[[f32; 3]], triangles: &[[u32; 3]]) -> Vec<u8> {
-    let mut bin: Vec<u8> = positions
-        .iter()
-        .flatten()
-        .flat_map(|x| x.to_le_bytes())
-        .collect();
-    let index_at = bin.len();
-    bin.extend(triangles.iter().flatten().flat_map(|i| i.to_le_bytes()));
-    let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
-    for p in positions {
-        for c in 0..3 {
-            lo[c] = lo[c].min(p[c]);
-            hi[c] = hi[c].max(p[c]);
+    glb_parts(&[("part", positions, triangles)])
+}
+
+/// One part of [`glb_parts`]: node name, positions, triangles.
+pub type Part<'a> = (&'a str, &'a [[f32; 3]], &'a [[u32; 3]]);
+
+/// A .glb with one node per part, each with its own mesh, as [`glb`].
+pub fn glb_parts(parts: &[Part]) -> Vec<u8> {
+    let mut bin: Vec<u8> = Vec::new();
+    let (mut accessors, mut views, mut meshes, mut nodes) = (vec![], vec![], vec![], vec![]);
+    for (i, (name, positions, triangles)) in parts.iter().enumerate() {
+        let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+        for p in positions.iter() {
+            for c in 0..3 {
+                lo[c] = lo[c].min(p[c]);
+                hi[c] = hi[c].max(p[c]);
+            }
         }
+        let at = bin.len();
+        bin.extend(positions.iter().flatten().flat_map(|x| x.to_le_bytes()));
+        let index_at = bin.len();
+        bin.extend(triangles.iter().flatten().flat_map(|i| i.to_le_bytes()));
+        views.push(serde_json::json!({"buffer": 0, "byteOffset": at, "byteLength": index_at - at}));
+        views.push(serde_json::json!({"buffer": 0, "byteOffset": index_at, "byteLength": bin.len() - index_at}));
+        accessors.push(
+            serde_json::json!({"bufferView": 2 * i, "componentType": 5126,
+            "count": positions.len(), "type": "VEC3", "min": lo, "max": hi}),
+        );
+        accessors.push(
+            serde_json::json!({"bufferView": 2 * i + 1, "componentType": 5125,
+            "count": 3 * triangles.len(), "type": "SCALAR"}),
+        );
+        meshes.push(serde_json::json!({"primitives": [{"attributes": {"POSITION": 2 * i}, "indices": 2 * i + 1}]}));
+        nodes.push(serde_json::json!({"name": name, "mesh": i}));
     }
     let doc = serde_json::json!({
         "asset": {"version": "2.0"},
         "scene": 0,
-        "scenes": [{"nodes": [0]}],
-        "nodes": [{"name": "part", "mesh": 0}],
-        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}],
-        "accessors": [
-            {"bufferView": 0, "componentType": 5126, "count": positions.len(), "type": "VEC3",
-             "min": lo, "max": hi},
-            {"bufferView": 1, "componentType": 5125, "count": 3 * triangles.len(), "type": "SCALAR"},
-        ],
-        "bufferViews": [
-            {"buffer": 0, "byteOffset": 0, "byteLength": index_at},
-            {"buffer": 0, "byteOffset": index_at, "byteLength": bin.len() - index_at},
-        ],
+        "scenes": [{"nodes": (0..parts.len()).collect::<Vec<_>>()}],
+        "nodes": nodes,
+        "meshes": meshes,
+        "accessors": accessors,
+        "bufferViews": views,
         "buffers": [{"byteLength": bin.len()}],
     });
     let mut json = serde_json::to_vec(&doc).unwrap();
