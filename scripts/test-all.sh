@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Set up a fresh Debian machine for sweptvol's tests and run every one of them.
-# Installs (only what is missing): lavapipe, the Vulkan loader, Node and npm, a Python venv with
+# Installs (only what is missing): lavapipe, the Vulkan loader, SLURM and munge, Node and npm, a Python venv with
 # the independent EXR reader, pytest, trimesh and manifold3d, the Khronos glTF validator, Blender (Debian's 3.4). Then:
 # format, lints, all tests (GPU path on lavapipe), the example, the Blender add-on's tests.
 set -euo pipefail
@@ -21,7 +21,7 @@ apt_install() {
 
 say "system packages"
 missing=()
-for p in mesa-vulkan-drivers libvulkan1 blender; do
+for p in mesa-vulkan-drivers libvulkan1 blender slurm-wlm munge; do
     dpkg -s "$p" >/dev/null 2>&1 || missing+=("$p")
 done
 python3 -m venv --help >/dev/null 2>&1 || missing+=(python3-venv)
@@ -54,7 +54,13 @@ cargo clippy --all-targets --locked -- -D warnings
 RUSTDOCFLAGS="-D warnings" cargo doc --no-deps --locked --quiet  # a renamed item breaks a doc link
 "$venv/bin/python" -m ruff check blender_addon tests/*.py  # the Python side (ruff.toml)
 
-say "tests (GPU path on whatever adapter wgpu finds: lavapipe here)"
+say "a one-machine SLURM cluster for the cluster tests (stopped at exit)"
+trap 'scripts/slurm-local.sh stop' EXIT
+eval "$(scripts/slurm-local.sh start)"
+export SWEPTVOL_REQUIRE_SLURM=1   # tests/slurm.rs fails, not skips, without it
+sinfo
+
+say "tests (GPU path on whatever adapter wgpu finds: lavapipe here; SLURM on this machine)"
 cargo test --all-targets --locked
 
 say "the README's example"

@@ -21,6 +21,7 @@
 //!   [`watch`] and `main.rs` are its shells.
 //! - [`verify`]: an independent certificate for any swept-volume mesh.
 
+pub mod cluster;
 pub mod depth;
 pub mod error;
 pub mod input;

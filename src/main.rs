@@ -9,6 +9,7 @@ use std::time::Duration;
 use clap::{Args, Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 
+use sweptvol::cluster;
 use sweptvol::error::{self, OptionError, OptionKey};
 use sweptvol::input::grid::{Accuracy, Overrides, Radii};
 use sweptvol::input::motion::Motion;
@@ -42,6 +43,10 @@ enum Command {
     /// Merge a job's shards (every shard-*.json of one job in the --from folders, checked
     /// complete and alike) and write what `run` writes: the same bytes.
     Mesh(MeshArgs),
+    /// Run a job on a SLURM cluster: `submit` queues its shards and the merge, `status` says
+    /// where it stands. Needs a filesystem every node shares and this binary on every node.
+    #[command(subcommand)]
+    Cluster(ClusterCommand),
     /// Watch a folder for jobs (job folders and dropped .glb + .csv pairs) and run them; see
     /// docs/exchange-protocol.md.
     Watch(WatchArgs),
@@ -90,6 +95,12 @@ impl From<BoundScopeArg> for BoundScope {
             BoundScopeArg::AxisVisible => BoundScope::AxisVisible,
         }
     }
+}
+
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+enum ExecutorArg {
+    Local,
+    Slurm,
 }
 
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]
@@ -203,6 +214,22 @@ struct WatchArgs {
     /// Default stated bound in world units, as `run --tolerance` (instead of --resolution).
     #[arg(long, value_name = "T", allow_negative_numbers = true)]
     tolerance: Option<f64>,
+    /// Where jobs run: `local`, here; `slurm`, each job as `cluster submit --shards N` queues it
+    /// (the watched folder must be on a filesystem every node shares).
+    #[arg(long, value_enum, default_value = "local")]
+    executor: ExecutorArg,
+    /// With --executor slurm: shards per job.
+    #[arg(long, value_name = "N", default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=9999))]
+    shards: u32,
+    /// With --executor slurm: an sbatch option for every job, as one argument; repeatable.
+    #[arg(long, value_name = "OPTION", allow_hyphen_values = true)]
+    sbatch: Vec<String>,
+    /// With --executor slurm: the sweptvol the nodes run [default: this one].
+    #[arg(long, value_name = "FILE")]
+    binary: Option<PathBuf>,
+    /// With --executor slurm: requeues of a failed shard.
+    #[arg(long, value_name = "N", default_value_t = 2)]
+    retries: u32,
     /// Inputs of one job larger than this in all are refused before they are parsed.
     #[arg(long, value_name = "BYTES", default_value_t = 2 << 30)]
     max_input_bytes: u64,
@@ -325,6 +352,55 @@ struct SweepArgs {
     shard: ShardId,
     #[command(flatten)]
     run: RunArgs,
+}
+
+#[derive(Subcommand)]
+enum ClusterCommand {
+    /// Write and submit a SLURM array job of N shard sweeps and a merge that runs once all
+    /// succeeded (--dependency=afterok); prints the job ids. Shards already finished for the
+    /// same job are not submitted again.
+    Submit(Box<SubmitArgs>),
+    /// Where a submitted job stands: shards done, missing and failed (from the manifests), the
+    /// jobs as SLURM sees them, and the merge.
+    Status(StatusArgs),
+}
+
+#[derive(Args)]
+struct SubmitArgs {
+    /// Shards to split the job into (array tasks 1..N).
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..=9999))]
+    shards: u32,
+    /// Where the shards, scripts and logs go [default: OUT/NAME.shards].
+    #[arg(long, value_name = "DIR")]
+    shard_dir: Option<PathBuf>,
+    /// The sweptvol the nodes run [default: this one]; it must be the same path on every node.
+    #[arg(long, value_name = "FILE")]
+    binary: Option<PathBuf>,
+    /// An sbatch option for both jobs, as one argument (--sbatch=--partition=long); repeatable.
+    #[arg(long, value_name = "OPTION", allow_hyphen_values = true)]
+    sbatch: Vec<String>,
+    /// An sbatch option for the shard array only (--sweep-sbatch=--gres=gpu:1).
+    #[arg(long, value_name = "OPTION", allow_hyphen_values = true)]
+    sweep_sbatch: Vec<String>,
+    /// An sbatch option for the merge only (--merge-sbatch=--mem=64G).
+    #[arg(long, value_name = "OPTION", allow_hyphen_values = true)]
+    merge_sbatch: Vec<String>,
+    /// Times SLURM requeues a failed shard before it counts as failed (bad input, exit 2, is
+    /// never retried).
+    #[arg(long, value_name = "N", default_value_t = 2)]
+    retries: u32,
+    #[command(flatten)]
+    run: RunArgs,
+}
+
+#[derive(Args)]
+struct StatusArgs {
+    /// The job's shard folder (`cluster submit --shard-dir`, by default OUT/NAME.shards).
+    #[arg(value_name = "DIR")]
+    dir: PathBuf,
+    /// Print the status as JSON.
+    #[arg(long)]
+    json: bool,
 }
 
 #[derive(Args)]
@@ -474,6 +550,66 @@ fn mesh(args: MeshArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+fn cluster(command: ClusterCommand) -> anyhow::Result<()> {
+    match command {
+        ClusterCommand::Submit(args) => {
+            let args = *args;
+            let run = run_options(&args.run);
+            let shard_dir = match args.shard_dir {
+                Some(d) => d,
+                None => cluster::default_shard_dir(&run)?,
+            };
+            let binary = match args.binary {
+                Some(b) => b,
+                None => std::env::current_exe()?,
+            };
+            let s = cluster::submit(&cluster::SubmitOptions {
+                run,
+                shards: args.shards,
+                shard_dir: shard_dir.clone(),
+                binary,
+                sbatch: args.sbatch,
+                sweep_sbatch: args.sweep_sbatch,
+                merge_sbatch: args.merge_sbatch,
+                retries: args.retries,
+                backend: args.run.backend.into(),
+            })?;
+            match &s.sweep_job {
+                Some(id) => println!(
+                    "submitted shards {} of {} as array job {id}, and the merge as job {} (runs after all succeed)",
+                    list(&s.swept),
+                    s.shards,
+                    s.merge_job
+                ),
+                None => println!(
+                    "every shard is finished; submitted the merge as job {}",
+                    s.merge_job
+                ),
+            }
+            println!("progress: sweptvol cluster status {}", shard_dir.display());
+            println!("outputs:  {}", s.out_dir.display());
+            Ok(())
+        }
+        ClusterCommand::Status(args) => {
+            let st = cluster::status(&args.dir, true)?;
+            if args.json {
+                println!("{}", serde_json::to_string_pretty(&st)?);
+                return Ok(());
+            }
+            print!("{}", cluster::describe(&st));
+            Ok(())
+        }
+    }
+}
+
+/// 1, 2, 5 as "1, 2, 5".
+fn list(v: &[u32]) -> String {
+    v.iter()
+        .map(|i| i.to_string())
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
 fn watch(args: WatchArgs) -> anyhow::Result<()> {
     let secs = |key: OptionKey, v: f64| {
         if v.is_finite() && v >= 0.0 {
@@ -485,7 +621,20 @@ fn watch(args: WatchArgs) -> anyhow::Result<()> {
             ))
         }
     };
+    let executor = match args.executor {
+        ExecutorArg::Local => watch::Executor::Local,
+        ExecutorArg::Slurm => watch::Executor::Slurm(watch::SlurmExecutor {
+            shards: args.shards,
+            binary: match args.binary {
+                Some(b) => b,
+                None => std::env::current_exe()?,
+            },
+            sbatch: args.sbatch,
+            retries: args.retries,
+        }),
+    };
     let opts = WatchOptions {
+        executor,
         dir: args.dir,
         once: args.once,
         settle: secs(OptionKey::Settle, args.settle)?,
@@ -564,6 +713,7 @@ fn main() -> ExitCode {
         Command::Run(a) => a.quiet,
         Command::Sweep(a) => a.run.quiet,
         Command::Mesh(a) => a.quiet,
+        Command::Cluster(_) => false,
         Command::Watch(a) => a.quiet,
         Command::Verify(a) => a.quiet || a.json,
         Command::Protocol => true,
@@ -582,6 +732,7 @@ fn main() -> ExitCode {
         Command::Run(args) => run(args).map(|()| ExitCode::SUCCESS),
         Command::Sweep(args) => sweep_shard(args).map(|()| ExitCode::SUCCESS),
         Command::Mesh(args) => mesh(args).map(|()| ExitCode::SUCCESS),
+        Command::Cluster(c) => cluster(c).map(|()| ExitCode::SUCCESS),
         Command::Watch(args) => watch(args).map(|()| ExitCode::SUCCESS),
         Command::Verify(args) => verify(args),
         Command::Protocol => {

@@ -24,6 +24,11 @@ pub enum MeshFormat {
 impl MeshFormat {
     pub const ALL: [MeshFormat; 3] = [MeshFormat::Stl, MeshFormat::Ply, MeshFormat::Obj];
 
+    /// The name `--also` and job.json take: `stl`, `ply`, `obj`.
+    pub fn name(self) -> &'static str {
+        &self.suffix()["swept.".len()..]
+    }
+
     /// The file name suffix after the stem: `swept.stl`, ...
     pub fn suffix(self) -> &'static str {
         match self {

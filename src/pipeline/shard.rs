@@ -2,7 +2,7 @@
 //!
 //! The depth images are a min and a max over posed triangles, and the reach an OR over them, so
 //! the sweep splits over poses with no loss: shard I of N sweeps its share of every part's poses
-//! ([`SweepInput::shard_windows`], balanced by posed triangles) on the whole job's grid, radius
+//! ([`crate::input::posed::SweepInput::shard_windows`], balanced by posed triangles) on the whole job's grid, radius
 //! and rounding term, and the merge takes the min, max and OR of the shards' encoded buffers,
 //! which is bit for bit what one sweep of all poses leaves (atomic min and max are
 //! order-independent).
@@ -191,6 +191,8 @@ pub struct Manifest {
     pub windows: Vec<[u64; 2]>,
     pub poses: u64,
     pub posed_triangles: u64,
+    /// Posed triangles of the whole job (all shards).
+    pub job_posed_triangles: u64,
     /// Whether the data holds the reach (the job floods).
     pub reach: bool,
     /// The data file (beside the manifest), its length in bytes and FNV-1a 64 (hex).
@@ -257,6 +259,7 @@ pub fn sweep_shard(
         output_paths(opts)?,
     )?;
     let windows = whole.input.shard_windows(shard.index - 1, shard.count);
+    let job_posed_triangles = whole.input.posed_triangles();
     let job = Prepared {
         input: whole.input.restricted(windows.clone()),
         ..whole
@@ -285,6 +288,7 @@ pub fn sweep_shard(
         windows: windows.iter().map(|w| [w.start, w.end]).collect(),
         poses: crate::sweep::total_poses(&job.input),
         posed_triangles: job.input.posed_triangles(),
+        job_posed_triangles,
         reach: swept.reach.is_some(),
         data_bytes: data.len() as u64,
         data_hash: fnv1a64_hex(&data),

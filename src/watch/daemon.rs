@@ -43,6 +43,28 @@ pub struct WatchOptions {
     /// For jobs whose job.json names neither resolution nor tolerance, and for drops.
     pub default_accuracy: Accuracy,
     pub max_input_bytes: u64,
+    pub executor: Executor,
+}
+
+/// Where the daemon's jobs run.
+#[derive(Clone, Debug, Default)]
+pub enum Executor {
+    /// Here, on the daemon's backend.
+    #[default]
+    Local,
+    /// On a SLURM cluster, each job as `cluster submit` would queue it; the watched folder
+    /// must be on a filesystem the nodes share.
+    Slurm(SlurmExecutor),
+}
+
+#[derive(Clone, Debug)]
+pub struct SlurmExecutor {
+    pub shards: u32,
+    /// The sweptvol the nodes run.
+    pub binary: PathBuf,
+    /// sbatch options for both jobs of every job.
+    pub sbatch: Vec<String>,
+    pub retries: u32,
 }
 
 /// The work queue between the loop and the workers.
@@ -70,8 +92,14 @@ pub fn run(opts: &WatchOptions) -> anyhow::Result<()> {
         signal_hook::flag::register(signal, shutdown.clone())?;
     }
 
-    let backend = Backend::acquire(opts.backend)?;
-    if let Backend::Cpu { reason } = &backend {
+    let backend = match &opts.executor {
+        // The nodes pick their own backend; this machine only waits.
+        Executor::Slurm(s) => Backend::Cpu {
+            reason: format!("jobs run on SLURM in {} shards each", s.shards),
+        },
+        Executor::Local => Backend::acquire(opts.backend)?,
+    };
+    if let (Backend::Cpu { reason }, Executor::Local) = (&backend, &opts.executor) {
         if opts.backend == BackendChoice::Auto {
             tracing::warn!("{reason}");
         }
@@ -109,6 +137,8 @@ pub fn run(opts: &WatchOptions) -> anyhow::Result<()> {
         default_accuracy: opts.default_accuracy,
         max_input_bytes: opts.max_input_bytes,
         shutdown: &shutdown,
+        executor: &opts.executor,
+        backend_choice: opts.backend,
     };
     let start = Instant::now();
     let mut detector = Detector::new(opts.settle);

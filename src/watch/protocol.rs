@@ -267,6 +267,22 @@ pub struct Status {
     /// Output file names, relative to the status file's folder (when done).
     #[serde(default)]
     pub outputs: Vec<String>,
+    /// A job the daemon handed to SLURM (`watch --executor slurm`): its shards and jobs.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cluster: Option<ClusterProgress>,
+}
+
+/// `status.json`'s `cluster`: how far a job on SLURM is.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct ClusterProgress {
+    pub shards: u32,
+    /// Shards finished (their manifests written).
+    pub shards_done: u32,
+    /// SLURM's ids: the shard array (None when every shard was finished) and the merge.
+    pub sweep_job: Option<String>,
+    pub merge_job: String,
+    /// The shard folder, relative to the watched folder.
+    pub shard_dir: String,
 }
 
 /// Wall-clock times, seconds since the Unix epoch, and durations in seconds.

@@ -8,6 +8,8 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
+use super::daemon::Executor;
+use super::on_cluster;
 use super::protocol::{self, ErrorInfo, Fingerprint, JobId, JobOptions, State};
 use super::status::StatusFile;
 use crate::error::{InputError, OptionError, OptionKey};
@@ -46,6 +48,10 @@ pub struct Context<'a> {
     pub default_accuracy: Accuracy,
     pub max_input_bytes: u64,
     pub shutdown: &'a AtomicBool,
+    /// Where jobs run: here on `backend`, or on SLURM.
+    pub executor: &'a Executor,
+    /// The daemon's --backend, for jobs that run elsewhere.
+    pub backend_choice: BackendChoice,
 }
 
 /// A job handed to a worker; its status file already says `queued`.
@@ -79,21 +85,17 @@ pub fn run(ctx: &Context, job: &QueuedJob) -> State {
         execute(ctx, job, &observer)
     }));
     let (state, message, error) = match outcome {
-        Ok(Ok(report)) => {
-            let outputs: Vec<String> = report
+        Ok(Ok(finished)) => {
+            let outputs: Vec<String> = finished
                 .outputs
                 .iter()
                 .filter_map(|p| p.file_name().map(|n| n.to_string_lossy().into_owned()))
                 .collect();
-            let stages = serde_json::to_value(&report.timings).ok();
             status.update(|s| {
                 s.outputs = outputs;
-                s.timings.stages = stages;
+                s.timings.stages = finished.stages;
             });
-            let message = format!(
-                "swept {} posed triangles on {}; {} triangles in the mesh",
-                report.counts.posed_triangles, report.backend, report.mesh.triangles_final
-            );
+            let message = finished.message;
             (State::Done, message, None)
         }
         Ok(Err(e)) if e.downcast_ref::<Cancelled>().is_some() => {
@@ -133,7 +135,7 @@ pub fn run(ctx: &Context, job: &QueuedJob) -> State {
 }
 
 /// Locate, confine and size-check the inputs, then run the pipeline.
-fn execute(ctx: &Context, job: &QueuedJob, observer: &JobObserver) -> anyhow::Result<Report> {
+fn execute(ctx: &Context, job: &QueuedJob, observer: &JobObserver) -> anyhow::Result<Finished> {
     let root = ctx.root;
     let (jail, generator, trajectory, job_json) = match &job.id {
         JobId::Folder(name) => {
@@ -218,6 +220,13 @@ fn execute(ctx: &Context, job: &QueuedJob, observer: &JobObserver) -> anyhow::Re
         let name = name.clone();
         job.status.update(|s| s.name = name);
     }
+    let opts = options.run_options(generator, trajectory, &job.id, root, ctx.default_accuracy);
+    remove_stale_temporaries(&opts, &job.id.status_path(root))?;
+    let prepared = pipeline::prepare(&opts).map_err(|e| in_job_terms(e, job_json.as_deref()))?;
+    if let Executor::Slurm(slurm) = ctx.executor {
+        let backend = options.backend.unwrap_or(ctx.backend_choice);
+        return on_cluster::run(ctx, job, slurm, &prepared.opts, backend, observer);
+    }
     let cpu;
     let backend = match options.backend {
         None | Some(BackendChoice::Auto) => ctx.backend,
@@ -240,10 +249,29 @@ fn execute(ctx: &Context, job: &QueuedJob, observer: &JobObserver) -> anyhow::Re
             }
         },
     };
-    let opts = options.run_options(generator, trajectory, &job.id, root, ctx.default_accuracy);
-    remove_stale_temporaries(&opts, &job.id.status_path(root))?;
-    let prepared = pipeline::prepare(&opts).map_err(|e| in_job_terms(e, job_json.as_deref()))?;
-    pipeline::execute(&prepared, backend, observer)
+    pipeline::execute(&prepared, backend, observer).map(|r| Finished::of(&r))
+}
+
+/// What the status file records of a finished job.
+pub struct Finished {
+    /// Output paths.
+    pub outputs: Vec<PathBuf>,
+    /// The report's timings.
+    pub stages: Option<serde_json::Value>,
+    pub message: String,
+}
+
+impl Finished {
+    pub fn of(report: &Report) -> Finished {
+        Finished {
+            outputs: report.outputs.clone(),
+            stages: serde_json::to_value(&report.timings).ok(),
+            message: format!(
+                "swept {} posed triangles on {}; {} triangles in the mesh",
+                report.counts.posed_triangles, report.backend, report.mesh.triangles_final
+            ),
+        }
+    }
 }
 
 /// A bad option value, worded for where it came from: job.json's keys (`"delta"`, the key

@@ -38,6 +38,7 @@ impl StatusFile {
             error: None,
             inputs,
             outputs: Vec::new(),
+            cluster: None,
         };
         StatusFile {
             path,
