@@ -10,8 +10,9 @@ use serde::Serialize;
 
 use crate::error::{num, InputError, OptionError, OptionKey};
 use crate::input::grid::{fit_grid, Accuracy, Grid, Overrides, Params};
-use crate::input::model::{Generator, Trajectory};
+use crate::input::model::{Generator, Part, Trajectory};
 use crate::input::motion::{self, Motion, MotionReport, MU_VOXELS};
+use crate::input::outline;
 use crate::input::poses::PoseSource;
 
 /// Unit roundoff of f32.
@@ -287,14 +288,30 @@ pub fn build(
     motion: Motion,
 ) -> anyhow::Result<SweepInput> {
     let assigned = assign_poses(generator, trajectory, csv_path)?;
+    // The bounds over every row (box, path lengths, world range) are maxima of convex
+    // functions of the vertex, so the parts' outlines give the same ones (`input::outline`).
+    let outlined = Generator {
+        parts: generator
+            .parts
+            .iter()
+            .map(|p| Part {
+                node_index: p.node_index,
+                node_name: p.node_name.clone(),
+                world: p.world,
+                positions: outline::outline(&p.positions),
+                triangles: Vec::new(),
+            })
+            .collect(),
+        warnings: Vec::new(),
+    };
     let intervals = match motion {
-        Motion::Screw => motion::intervals(generator, trajectory, csv_path, &assigned)?,
+        Motion::Screw => motion::intervals(&outlined, trajectory, csv_path, &assigned)?,
         Motion::Discrete => Vec::new(),
     };
-    let (mut lo, mut hi) = posed_bounds(generator, &assigned);
+    let (mut lo, mut hi) = posed_bounds(&outlined, &assigned);
     // The grid holds every instant of the motion (the sweep would clip what lies outside).
     let motion_box = (!intervals.is_empty())
-        .then(|| motion::motion_box(generator, &intervals, (hi - lo).max_element()));
+        .then(|| motion::motion_box(&outlined, &intervals, (hi - lo).max_element()));
     let finite = |(a, b): (DVec3, DVec3)| a.is_finite() && b.is_finite();
     if let Some(m) = motion_box.filter(|&m| finite(m)) {
         (lo, hi) = (lo.min(m.0), hi.max(m.1));
@@ -303,7 +320,7 @@ pub fn build(
     let (grid, params) = fit_grid(lo, hi, accuracy, overrides, mu_voxels)?;
     // Rows too far out for f32 are refused by line first; a motion box that overflowed
     // otherwise would leave instants outside the grid: refused too, never clipped.
-    check_world_range(generator, gltf_path, csv_path, &assigned, &grid)?;
+    check_world_range(&outlined, gltf_path, csv_path, &assigned, &grid)?;
     if motion_box.is_some_and(|m| !finite(m)) {
         anyhow::bail!("the continuous motion's bounding box overflows f64: move the part nearer the world origin, or pass --motion discrete");
     }
