@@ -577,7 +577,7 @@ fn cluster(command: ClusterCommand) -> anyhow::Result<()> {
             match &s.sweep_job {
                 Some(id) => println!(
                     "submitted shards {} of {} as array job {id}, and the merge as job {} (runs after all succeed)",
-                    list(&s.swept),
+                    cluster::list(&s.swept),
                     s.shards,
                     s.merge_job
                 ),
@@ -600,14 +600,6 @@ fn cluster(command: ClusterCommand) -> anyhow::Result<()> {
             Ok(())
         }
     }
-}
-
-/// 1, 2, 5 as "1, 2, 5".
-fn list(v: &[u32]) -> String {
-    v.iter()
-        .map(|i| i.to_string())
-        .collect::<Vec<_>>()
-        .join(", ")
 }
 
 fn watch(args: WatchArgs) -> anyhow::Result<()> {

@@ -124,9 +124,15 @@ pub fn sweep_args(opts: &RunOptions) -> anyhow::Result<Vec<String>> {
 /// Check the job here (inputs, options, outputs: errors before anything is queued), write the
 /// scripts and submit the missing shards and the merge. Returns the submission.
 pub fn submit(o: &SubmitOptions) -> anyhow::Result<Submission> {
-    anyhow::ensure!(o.shards >= 1, "a job needs at least one shard");
     // Everything that can fail because of the user's files fails now, on the login node.
-    let posed_triangles = pipeline::prepare(&o.run)?.input.posed_triangles();
+    let job = pipeline::prepare(&o.run)?;
+    submit_prepared(o, &job)
+}
+
+/// [`submit`] of a job already prepared from `o.run` (the watcher prepares its jobs itself).
+pub fn submit_prepared(o: &SubmitOptions, job: &pipeline::Prepared) -> anyhow::Result<Submission> {
+    anyhow::ensure!(o.shards >= 1, "a job needs at least one shard");
+    let posed_triangles = job.input.posed_triangles();
     let spec = JobSpec::of(&o.run)?;
     let dir = &o.shard_dir;
     fs::create_dir_all(dir.join("logs"))
@@ -411,4 +417,12 @@ pub fn describe(st: &ClusterStatus) -> String {
         };
     }
     out
+}
+
+/// Shard indices as "1, 2, 5".
+pub fn list(v: &[u32]) -> String {
+    v.iter()
+        .map(|i| i.to_string())
+        .collect::<Vec<_>>()
+        .join(", ")
 }

@@ -561,61 +561,33 @@ impl ShardProgress {
                 Err(e) => foreign.push((p, format!("{e:#}"))),
             }
         }
-        let reference = read
+        // Group the manifests by (job, count) in one pass; the largest group is the job.
+        let mut groups: Vec<(&JobSpec, u32, usize)> = Vec::new();
+        for (_, m) in &read {
+            match groups
+                .iter_mut()
+                .find(|(j, c, _)| **j == m.job && *c == m.shard.count)
+            {
+                Some(g) => g.2 += 1,
+                None => groups.push((&m.job, m.shard.count, 1)),
+            }
+        }
+        // max_by_key keeps the last of equals: reversed, ties go to the first in name order.
+        let reference = groups
             .iter()
-            .min_by_key(|(_, m)| {
-                let alike = read
-                    .iter()
-                    .filter(|(_, o)| o.job == m.job && o.shard.count == m.shard.count);
-                std::cmp::Reverse(alike.count())
-            })
-            .map(|(_, m)| (m.job.clone(), m.shard.count));
+            .rev()
+            .max_by_key(|g| g.2)
+            .map(|(j, c, _)| ((*j).clone(), *c));
         let Some((job, count)) = reference else {
             let (p, why) = &foreign[0];
             return Err(InputError::new(p, why.clone(), "sweep the shards again").into());
         };
         let mut done: Vec<(PathBuf, Manifest)> = Vec::new();
         for (p, m) in read {
-            let why = if !m.job.same_inputs(&job) {
-                Some(format!(
-                    "a shard of another job: its inputs are {} ({}) and {} ({}), the others' {} ({}) and {} ({})",
-                    m.job.generator.display(),
-                    m.job.generator_hash,
-                    m.job.trajectory.display(),
-                    m.job.trajectory_hash,
-                    job.generator.display(),
-                    job.generator_hash,
-                    job.trajectory.display(),
-                    job.trajectory_hash
-                ))
-            } else if m.job != job {
-                Some(format!(
-                    "a shard of the same inputs swept with other options ({})",
-                    job.differences(&m.job, "the others have")
-                ))
-            } else if m.shard.count != count {
-                Some(format!(
-                    "shard {} of {}, where the others are of {count}",
-                    m.shard.index, m.shard.count
-                ))
-            } else if let Some((q, d)) = done.iter().find(|(_, d)| d.shard.index == m.shard.index) {
-                // The same shard twice (copied folders) counts once; different data is an error.
-                Some(if d.data_hash == m.data_hash {
-                    String::new()
-                } else {
-                    format!(
-                        "shard {} of {count} appears twice with different data (also {})",
-                        m.shard.index,
-                        q.display()
-                    )
-                })
-            } else {
-                None
-            };
-            match why {
-                None => done.push((p, m)),
-                Some(w) if w.is_empty() => {}
-                Some(w) => foreign.push((p, w)),
+            match fit(&job, count, &m, &done) {
+                Fit::Done => done.push((p, m)),
+                Fit::Copy => {}
+                Fit::Foreign(why) => foreign.push((p, why)),
             }
         }
         done.sort_by_key(|(_, m)| m.shard.index);
@@ -627,6 +599,53 @@ impl ShardProgress {
             missing,
             foreign,
         })
+    }
+}
+
+/// How one manifest fits the job a set of manifests is taken to be.
+enum Fit {
+    /// A shard of the job, the first with its index.
+    Done,
+    /// A copy of a shard already taken (the same data): counts once.
+    Copy,
+    /// Of another job, other options, another split, or its index twice with other data.
+    Foreign(String),
+}
+
+fn fit(job: &JobSpec, count: u32, m: &Manifest, done: &[(PathBuf, Manifest)]) -> Fit {
+    if !m.job.same_inputs(job) {
+        return Fit::Foreign(format!(
+            "a shard of another job: its inputs are {} ({}) and {} ({}), the others' {} ({}) and {} ({})",
+            m.job.generator.display(),
+            m.job.generator_hash,
+            m.job.trajectory.display(),
+            m.job.trajectory_hash,
+            job.generator.display(),
+            job.generator_hash,
+            job.trajectory.display(),
+            job.trajectory_hash
+        ));
+    }
+    if m.job != *job {
+        return Fit::Foreign(format!(
+            "a shard of the same inputs swept with other options ({})",
+            job.differences(&m.job, "the others have")
+        ));
+    }
+    if m.shard.count != count {
+        return Fit::Foreign(format!(
+            "shard {} of {}, where the others are of {count}",
+            m.shard.index, m.shard.count
+        ));
+    }
+    match done.iter().find(|(_, d)| d.shard.index == m.shard.index) {
+        None => Fit::Done,
+        Some((_, d)) if d.data_hash == m.data_hash => Fit::Copy,
+        Some((q, _)) => Fit::Foreign(format!(
+            "shard {} of {count} appears twice with different data (also {})",
+            m.shard.index,
+            q.display()
+        )),
     }
 }
 
@@ -782,6 +801,7 @@ mod tests {
     fn reach_round_trips() {
         let mut rng = fastrand::Rng::with_seed(7);
         let dims = [130usize, 7, 5];
+        let mut cuts = 0;
         for case in 0..50 {
             let mut bits = VoxelBits::new(dims);
             for w in bits.words_raw_mut() {
@@ -812,14 +832,15 @@ mod tests {
             decode_into(&data, &mut encoded, Some(&mut into)).unwrap();
             assert_eq!(into.words_raw(), bits.words_raw());
             // Cut anywhere in the reach: an error, never a silent partial merge.
-            let depth_end =
-                data.len() - (data.len() - 8 - encoded.iter().map(|e| 4 * e.len()).sum::<usize>());
+            let depth_end = MAGIC.len() + encoded.iter().map(|e| 4 * e.len()).sum::<usize>();
             for cut in [depth_end + 1, data.len() - 1, data.len() - 8] {
                 if cut > depth_end && cut < data.len() {
                     let mut into = VoxelBits::new(dims);
                     assert!(decode_into(&data[..cut], &mut encoded, Some(&mut into)).is_err());
+                    cuts += 1;
                 }
             }
         }
+        assert!(cuts > 50, "only {cuts} cut data files were tried");
     }
 }

@@ -12,7 +12,7 @@ use super::daemon::SlurmExecutor;
 use super::protocol::{ClusterProgress, JobId};
 use super::runner::{Context, Finished, QueuedJob};
 use crate::cluster::{self, slurm, SubmitOptions};
-use crate::pipeline::RunOptions;
+use crate::pipeline::Prepared;
 use crate::sweep::backend::BackendChoice;
 use crate::sweep::{Cancelled, Observer};
 
@@ -29,18 +29,19 @@ pub fn shard_dir(root: &Path, id: &JobId) -> PathBuf {
     root.join(".sweptvol").join("shards").join(name)
 }
 
-/// Submit `opts` and wait for its merge; the outputs are then in place as a local run leaves them.
+/// Submit the prepared job and wait for its merge; the outputs are then in place as a local run leaves them.
 pub fn run(
     ctx: &Context,
     job: &QueuedJob,
     slurm_opts: &SlurmExecutor,
-    opts: &RunOptions,
+    prepared: &Prepared,
     backend: BackendChoice,
     observer: &dyn Observer,
 ) -> anyhow::Result<Finished> {
+    let opts = &prepared.opts;
     let dir = shard_dir(ctx.root, &job.id);
     observer.stage("sweep");
-    let submission = cluster::submit(&SubmitOptions {
+    let submit = SubmitOptions {
         run: opts.clone(),
         shards: slurm_opts.shards,
         shard_dir: dir.clone(),
@@ -50,7 +51,8 @@ pub fn run(
         merge_sbatch: Vec::new(),
         retries: slurm_opts.retries,
         backend,
-    })?;
+    };
+    let submission = cluster::submit_prepared(&submit, prepared)?;
     let ids: Vec<String> = submission
         .sweep_job
         .iter()
@@ -111,8 +113,8 @@ pub fn run(
                     log_tail(&dir.join("logs/merge.log"))
                 );
             }
-            let report_path = &job_report(opts)?;
-            let bytes = std::fs::read(report_path)?;
+            // The merge wrote the outputs `prepare` named, the report among them.
+            let bytes = std::fs::read(&prepared.outputs.report)?;
             let report: serde_json::Value = serde_json::from_slice(&bytes)?;
             let outputs = report["outputs"]
                 .as_array()
@@ -149,11 +151,6 @@ pub fn run(
             }
         }
     }
-}
-
-/// The report the merge writes for `opts`.
-fn job_report(opts: &RunOptions) -> anyhow::Result<PathBuf> {
-    Ok(crate::pipeline::output_paths(opts)?.report)
 }
 
 /// The last lines of a log, for an error message.

@@ -225,7 +225,7 @@ fn execute(ctx: &Context, job: &QueuedJob, observer: &JobObserver) -> anyhow::Re
     let prepared = pipeline::prepare(&opts).map_err(|e| in_job_terms(e, job_json.as_deref()))?;
     if let Executor::Slurm(slurm) = ctx.executor {
         let backend = options.backend.unwrap_or(ctx.backend_choice);
-        return on_cluster::run(ctx, job, slurm, &prepared.opts, backend, observer);
+        return on_cluster::run(ctx, job, slurm, &prepared, backend, observer);
     }
     let cpu;
     let backend = match options.backend {
