@@ -29,6 +29,7 @@ pub mod io;
 pub mod mesh;
 pub mod pipeline;
 pub mod simplify;
+pub mod surface;
 pub mod sweep;
 pub mod verify;
 pub mod voxels;

@@ -20,7 +20,8 @@ use sweptvol::io::{gltf_in, gltf_out};
 use sweptvol::mesh::classify::Classifier;
 use sweptvol::mesh::extract::extract;
 use sweptvol::mesh::Mesh;
-use sweptvol::simplify::{simplify, SimplifyOptions};
+use sweptvol::simplify::SimplifyOptions;
+use sweptvol::surface::{self, Params};
 use sweptvol::sweep::{cpu, Silent};
 
 /// Sweep `g` along `poses` at resolution `n`: the input, the depth images and the voxel boundary.
@@ -199,10 +200,16 @@ fn check_simplified(
     visible: bool,
     seed: u64,
 ) -> (usize, usize) {
-    let (input, images, start) = sweep_mesh(g, poses, n);
-    let cls = Classifier::new(&images);
+    let (input, images, _) = sweep_mesh(g, poses, n);
     let opts = simplify_options(&input);
-    let (out, stats) = simplify(&start, &cls, opts);
+    // Blocks of 8 voxels: the grids here are 24 to 36 wide, so seams run everywhere.
+    let params = Params {
+        block: 8,
+        ..Params::new(opts)
+    };
+    let s = surface::build(&images, None, &params, &|| false).expect("not stopped");
+    let (out, stats) = (s.mesh, s.stats);
+    assert!(out.manifold_defects().is_manifold());
     let tris = posed_grid_triangles(g, poses, &input);
     check_mesh_with(
         &input,
@@ -211,11 +218,12 @@ fn check_simplified(
         visible,
         &mut Rng::with_seed(seed),
         // The radius the report's clearance and bound are derived from, ε + √3h/2 (not the
-        // simplifier's own figure: a wrong one there must fail here).
-        input.params.epsilon / input.grid.h + 3f64.sqrt() / 2.0,
+        // simplifier's own figure: a wrong one there must fail here), or the joined voxels'
+        // reach where it is larger.
+        (input.params.epsilon / input.grid.h + 3f64.sqrt() / 2.0).max(s.joined_reach),
     );
     assert!(stats.collapses > 0);
-    (start.triangles.len(), out.triangles.len())
+    (s.triangles_start as usize, out.triangles.len())
 }
 
 #[test]

@@ -15,7 +15,8 @@ use sweptvol::mesh::classify::Classifier;
 use sweptvol::mesh::extract::extract;
 use sweptvol::mesh::manifold::Joined;
 use sweptvol::mesh::Mesh;
-use sweptvol::simplify::{simplify, SimplifyOptions};
+use sweptvol::simplify::SimplifyOptions;
+use sweptvol::surface::{self, Params};
 use sweptvol::sweep::{cpu, Silent};
 
 /// The pose at s in [0, 1] of the screw motion from rigid `m0` to rigid `m1`, evaluated by the
@@ -53,9 +54,21 @@ fn run(
     let images = cpu::sweep(&input, &Silent).unwrap();
     let cls = Classifier::new(&images);
     let start = extract(&Joined::new(&cls));
-    let opts = SimplifyOptions::for_params(&input.params, input.grid.h, 0).unwrap();
-    let (out, _) = simplify(&start, &cls, opts);
+    let out = simplified(&input, &images);
     (input, start, out)
+}
+
+/// The mesh stage's output for `images`, as the pipeline makes it (condition ⋆; blocks of 8
+/// voxels, so that seams cross the small grids here).
+fn simplified(input: &SweepInput, images: &sweptvol::depth::DepthImages) -> Mesh {
+    let opts = SimplifyOptions::for_params(&input.params, input.grid.h, 0).unwrap();
+    let params = Params {
+        block: 8,
+        ..Params::new(opts)
+    };
+    surface::build(images, None, &params, &|| false)
+        .expect("not stopped")
+        .mesh
 }
 
 /// World point to grid units.
@@ -257,8 +270,7 @@ fn random_large_steps_are_enclosed_at_every_instant() {
             let start = extract(&Joined::new(&cls));
             let mut bad = outside_points(&g, &poses, &input, &start, 200);
             if case % 10 == 0 {
-                let opts = SimplifyOptions::for_params(&input.params, input.grid.h, 0).unwrap();
-                let (out, _) = simplify(&start, &cls, opts);
+                let out = simplified(&input, &images);
                 bad.extend(outside_points(&g, &poses, &input, &out, 200));
             }
             if let Some((k, s, p)) = bad.first() {

@@ -15,11 +15,10 @@ use glam::DMat4;
 use sweptvol::input::model::Generator;
 use sweptvol::input::posed::SweepInput;
 use sweptvol::mesh::classify::Classifier;
-use sweptvol::mesh::extract::extract;
 use sweptvol::mesh::flood::flood;
-use sweptvol::mesh::manifold::Joined;
 use sweptvol::mesh::Mesh;
-use sweptvol::simplify::{simplify, SimplifyOptions};
+use sweptvol::simplify::SimplifyOptions;
+use sweptvol::surface::{self, Params};
 use sweptvol::sweep::reach::reach;
 use sweptvol::sweep::{cpu, Silent};
 use sweptvol::voxels::VoxelBits;
@@ -84,32 +83,44 @@ fn dist_box(p: V3, (lo, hi): &Box3) -> f64 {
         .sqrt()
 }
 
-/// The classifier for `input`'s images: ⋆ alone, or ⋆ less the flood (with `reach` altered
-/// first by `mutate`, for the test that shows a flood through the offset is caught).
-fn classify(input: &SweepInput, flooded: bool, mutate: impl FnOnce(&mut VoxelBits)) -> Classifier {
+/// The classifier for `input`'s images: ⋆ alone, or ⋆ less the flood.
+fn classify(input: &SweepInput, flooded: bool) -> Classifier {
     let images = cpu::sweep(input, &Silent).unwrap();
     let cls = Classifier::new(&images);
     if !flooded {
         return cls;
     }
-    let mut r = reach(input, &Silent).unwrap();
-    mutate(&mut r);
-    cls.carve(flood(&r))
+    cls.carve(flood(&reach(input, &Silent).unwrap()))
 }
 
-/// The simplified mesh (world units) and its stated bound, as the pipeline states it.
-fn mesh_and_bound(input: &SweepInput, cls: &Classifier) -> (Mesh, f64) {
-    let joined = Joined::new(cls);
-    let start = extract(&joined);
-    let reach_voxels = joined.reach();
-    drop(joined);
+/// The mesh stage's output (world units) and its stated bound, as the pipeline makes and
+/// states them: ⋆ alone, or ⋆ less the flood (with the reach altered first by `mutate`, for
+/// the test that shows a flood through the offset is caught). Blocks of 16 voxels, so seams
+/// cross the part.
+fn mesh_and_bound(
+    input: &SweepInput,
+    flooded: bool,
+    mutate: impl FnOnce(&mut VoxelBits),
+) -> (Mesh, f64) {
+    let images = cpu::sweep(input, &Silent).unwrap();
+    let r = flooded.then(|| {
+        let mut r = reach(input, &Silent).unwrap();
+        mutate(&mut r);
+        r
+    });
     let opts = SimplifyOptions::for_params(&input.params, input.grid.h, 0).unwrap();
-    let (mut out, _) = simplify(&start, cls, opts);
+    let params = Params {
+        block: 16,
+        ..Params::new(opts)
+    };
+    let s = surface::build(&images, r, &params, &|| false).expect("not stopped");
+    assert!(s.mesh.manifold_defects().is_manifold());
+    let mut out = s.mesh;
     let h = input.grid.h;
     for p in &mut out.positions {
         *p = *p * h + glam::DVec3::from_array(input.grid.origin);
     }
-    let bound = (input.params.epsilon + 3f64.sqrt() / 2.0 * h).max(reach_voxels * h)
+    let bound = (input.params.epsilon + 3f64.sqrt() / 2.0 * h).max(s.joined_reach * h)
         + input.params.delta
         + input.motion.mu
         + 2.0 * input.rounding * h;
@@ -177,12 +188,12 @@ fn a_hidden_branch_is_kept_open_by_the_flood_and_filled_by_the_axes() {
     };
     let [i, j, k] = to_voxel(branch);
 
-    let axes = classify(&input, false, |_| {});
+    let axes = classify(&input, false);
     assert!(
         axes.inside(i, j, k),
         "condition ⋆ should fill the hidden branch"
     );
-    let carved = classify(&input, true, |_| {});
+    let carved = classify(&input, true);
     assert!(
         !carved.inside(i, j, k),
         "the flood should open the hidden branch"
@@ -191,8 +202,8 @@ fn a_hidden_branch_is_kept_open_by_the_flood_and_filled_by_the_axes() {
     let [i, j, k] = to_voxel([5.0, 5.0, 8.0]);
     assert!(!axes.inside(i, j, k) && !carved.inside(i, j, k));
 
-    let (flooded_mesh, bound) = mesh_and_bound(&input, &carved);
-    let (axes_mesh, axes_bound) = mesh_and_bound(&input, &axes);
+    let (flooded_mesh, bound) = mesh_and_bound(&input, true, |_| {});
+    let (axes_mesh, axes_bound) = mesh_and_bound(&input, false, |_| {});
     assert!(!inside(&flooded_mesh, branch) && inside(&axes_mesh, branch));
 
     // Conservative: every point of the block is inside the flooded output.
@@ -244,7 +255,7 @@ fn a_flood_through_the_offset_is_caught() {
     // fails (so it can).
     let boxes = l_channel_boxes();
     let input = build(&boxes_generator(&boxes), &[DMat4::IDENTITY], 60);
-    let cls = classify(&input, true, |r| {
+    let (mesh, _) = mesh_and_bound(&input, true, |r| {
         let [nx, ny, nz] = r.dims;
         let (j, k) = (ny / 2, nz / 2);
         for i in 0..nx {
@@ -254,7 +265,6 @@ fn a_flood_through_the_offset_is_caught() {
         }
         let _ = nz;
     });
-    let (mesh, _) = mesh_and_bound(&input, &cls);
     let outside = solid_points(&boxes)
         .into_iter()
         .filter(|p| !inside(&mesh, *p))
@@ -291,8 +301,7 @@ fn random_closed_parts_stay_enclosed_and_within_the_bound() {
         };
         let poses = common::random_rigid_poses(&mut rng);
         let input = build(&g, &poses, 48);
-        let cls = classify(&input, true, |_| {});
-        let (mesh, bound) = mesh_and_bound(&input, &cls);
+        let (mesh, bound) = mesh_and_bound(&input, true, |_| {});
         let part = &g.parts[0];
         let mut tris: Vec<[V3; 3]> = Vec::new();
         for m in &poses {

@@ -319,6 +319,18 @@ impl VoxelSet for Joined<'_> {
         self.base.inside(i, j, k) || self.added.contains(&[i, j, k])
     }
 
+    fn fill_box(&self, lo: [isize; 3], hi: [isize; 3], out: &mut [bool]) {
+        self.base.fill_box(lo, hi, out);
+        let d = [0, 1, 2].map(|a| (hi[a] - lo[a]).max(0));
+        let from = self.sorted.partition_point(|c| c[2] < lo[2]);
+        for c in self.sorted[from..].iter().take_while(|c| c[2] < hi[2]) {
+            if (0..2).all(|a| c[a] >= lo[a] && c[a] < hi[a]) {
+                let at = ((c[2] - lo[2]) * d[1] + c[1] - lo[1]) * d[0] + c[0] - lo[0];
+                out[at as usize] = true;
+            }
+        }
+    }
+
     fn slab(&self, k: isize, slab: &mut [bool]) {
         self.base.slab(k, slab);
         let nx = self.base.dims()[0];

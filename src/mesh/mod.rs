@@ -5,6 +5,7 @@
 //! and outside voxels. [`Mesh`] is the triangle mesh every later stage passes on, in grid units,
 //! with the checks every stage's output must pass.
 
+pub mod blocks;
 pub mod classify;
 pub mod extract;
 pub mod flood;

@@ -31,12 +31,9 @@ use crate::input::posed::{self, SweepInput};
 use crate::io::exr_depth::{self, ExtraMeta};
 use crate::io::mesh_formats::MeshFormat;
 use crate::io::{atomic, gltf_in, gltf_out, trajectory};
-use crate::mesh::classify::{Classifier, Method};
-use crate::mesh::extract;
-use crate::mesh::flood;
-use crate::mesh::manifold::Joined;
+use crate::mesh::classify::Method;
 use crate::mesh::Mesh;
-use crate::simplify::{simplify_until, SimplifyOptions};
+use crate::simplify::SimplifyOptions;
 use crate::sweep::backend::Backend;
 use crate::sweep::{Cancelled, Observer};
 use crate::voxels::VoxelBits;
@@ -251,9 +248,19 @@ pub fn finish(job: &Prepared, swept: Swept, observer: &dyn Observer) -> anyhow::
     } = swept;
 
     checkpoint(observer, "classify")?;
-    tracing::info!("classifying voxels and extracting the boundary mesh");
-    let mut classifier = Classifier::new(&images);
-    let mut classification = ClassificationReport {
+    tracing::info!("classifying voxels, simplifying the boundary block by block");
+    let h = input.grid.h;
+    let band = job.band;
+    if reach.is_some() {
+        tracing::info!("flooding from outside: {}", job.classify.reason);
+    }
+    let params = crate::surface::Params {
+        keep_start_mesh: opts.keep_start_mesh,
+        ..crate::surface::Params::new(band)
+    };
+    let surface = crate::surface::build(&images, reach, &params, &|| observer.cancelled())
+        .ok_or(Cancelled)?;
+    let classification = ClassificationReport {
         method: if job.classify.flood {
             Method::Flood
         } else {
@@ -262,47 +269,23 @@ pub fn finish(job: &Prepared, swept: Swept, observer: &dyn Observer) -> anyhow::
         .name(),
         asked: opts.classify.name(),
         reason: job.classify.reason.clone(),
-        reach_voxels: None,
-        flooded_voxels: None,
-        flood_seconds: None,
+        reach_voxels: surface.reach_voxels,
+        flooded_voxels: surface.flooded_voxels,
+        flood_seconds: surface.flood_seconds,
     };
-    if let Some(reach) = reach {
-        tracing::info!("flooding from outside: {}", job.classify.reason);
-        let t0 = Instant::now();
-        let flooded = flood::flood(&reach);
-        classification.flood_seconds = Some(t0.elapsed().as_secs_f64());
-        classification.reach_voxels = Some(reach.count());
-        classification.flooded_voxels = Some(flooded.count());
-        drop(reach);
-        classifier = classifier.carve(flooded);
-    }
-    // Where voxels touch only along an edge or at a corner, outside voxels join them so the
-    // start mesh is a 2-manifold; the simplifier keeps it one. The tolerance band stays that of
-    // the classifier's voxels (docs/design.md, "A 2-manifold start mesh").
-    let joined = Joined::new(&classifier);
-    let start = extract::extract(&joined);
-    let (joined_voxels, join_reach) = (joined.added().len() as u64, joined.reach());
-    drop(joined);
-    let t_extract = Instant::now();
-    checkpoint(observer, "simplify")?;
-    tracing::info!(
-        "simplifying {} triangles within the tolerance volume",
-        start.triangles.len()
-    );
-    let h = input.grid.h;
-    let band = job.band;
-    // The start mesh's memory goes to the simplifier; what the report and --keep-start-mesh
-    // need of it is taken first.
-    let triangles_start = start.triangles.len() as u64;
-    let start_glb = if opts.keep_start_mesh {
-        let name = format!("{} voxel boundary", output_stem(opts)?);
-        let extras = serde_json::json!({"sweptvol_version": env!("CARGO_PKG_VERSION"), "triangles": triangles_start});
-        Some(gltf_out::glb_bytes(&start, &input.grid, &name, extras)?)
-    } else {
-        None
+    let triangles_start = surface.triangles_start;
+    let start_glb = match &surface.start_mesh {
+        Some(start) => {
+            let name = format!("{} voxel boundary", output_stem(opts)?);
+            let extras = serde_json::json!({"sweptvol_version": env!("CARGO_PKG_VERSION"), "triangles": triangles_start});
+            Some(gltf_out::glb_bytes(start, &input.grid, &name, extras)?)
+        }
+        None => None,
     };
-    let (mesh, simplify_stats) =
-        simplify_until(start, &classifier, band, &|| observer.cancelled()).ok_or(Cancelled)?;
+    let (joined_voxels, join_reach) = (surface.joined_voxels, surface.joined_reach);
+    let (mesh, simplify_stats) = (surface.mesh, surface.stats);
+    let carved = surface.carved;
+    let t_extract = t_sweep + std::time::Duration::from_secs_f64(surface.classify_seconds);
     // Checked on the f32 world positions the files hold: rounding could merge vertices.
     let (written, output_rounding) = gltf_out::world_positions(&mesh, &input.grid);
     let manifold = Mesh {
@@ -373,7 +356,7 @@ pub fn finish(job: &Prepared, swept: Swept, observer: &dyn Observer) -> anyhow::
             + mu
             + 2.0 * input.rounding * h
             + output_rounding,
-        hausdorff_bound_scope: if classifier.is_carved() {
+        hausdorff_bound_scope: if carved {
             HAUSDORFF_SCOPE_FLOOD
         } else {
             HAUSDORFF_SCOPE

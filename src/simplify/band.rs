@@ -4,8 +4,6 @@
 //!
 //! Units: grid units throughout (one voxel edge = 1).
 
-use std::hash::Hasher;
-
 use glam::DVec3;
 
 use crate::mesh::classify::Classifier;
@@ -91,29 +89,7 @@ pub fn dist_to_centre(cls: &Classifier, p: DVec3, inside: bool, limit: f64) -> O
     (best <= limit).then_some(best)
 }
 
-/// A voxel or hash cell (each index in -2..2^21 - 2: the grid is at most 12288 voxels wide) as one
-/// u64 key: i + 2, j + 2, k + 2 in 21 bits each.
-pub(crate) fn pack_cell(c: [i64; 3]) -> u64 {
-    (c[0] + 2) as u64 | ((c[1] + 2) as u64) << 21 | ((c[2] + 2) as u64) << 42
-}
-
-/// Multiplicative hash for packed voxel keys (the std SipHash dominated the profile).
-#[derive(Default)]
-pub(crate) struct KeyHasher(u64);
-
-impl Hasher for KeyHasher {
-    fn write(&mut self, bytes: &[u8]) {
-        for &b in bytes {
-            self.write_u64(b as u64);
-        }
-    }
-    fn write_u64(&mut self, x: u64) {
-        self.0 = (self.0.rotate_left(5) ^ x).wrapping_mul(0x517c_c1b7_2722_0a95);
-    }
-    fn finish(&self) -> u64 {
-        self.0.rotate_left(26)
-    }
-}
+pub(crate) use crate::voxels::{pack_cell, KeyHasher};
 
 /// Offset index n of the 5×5×5 block (n = 25(dk+2) + 5(dj+2) + di+2) split per axis.
 const BLOCK: [[u8; 3]; 125] = {
@@ -193,6 +169,19 @@ const MAX_SLOTS: usize = 1 << 22;
 /// Nodes one region test may visit before it gives up (and rejects, which is always sound).
 const NODE_BUDGET: usize = 4096;
 
+/// Voxel `v`'s coordinates (low 21 bits each) interleaved, x lowest.
+fn morton(v: [isize; 3]) -> u64 {
+    let spread = |x: isize| {
+        let mut x = (x as u64) & 0x1f_ffff;
+        x = (x | x << 32) & 0x1f_0000_0000_ffff;
+        x = (x | x << 16) & 0x1f_0000_ff00_00ff;
+        x = (x | x << 8) & 0x100f_00f0_0f00_f00f;
+        x = (x | x << 4) & 0x10c3_0c30_c30c_30c3;
+        (x | x << 2) & 0x1249_2492_4924_9249
+    };
+    spread(v[0]) | spread(v[1]) << 1 | spread(v[2]) << 2
+}
+
 /// The memo entry of voxel `v`, computed from the classifier.
 fn compute(cls: &Classifier, v: [isize; 3]) -> u128 {
     let inside = cls.block5(v.map(|x| x - 2));
@@ -234,8 +223,8 @@ impl<'c> Proximity<'c> {
         if self.last.0 == key {
             return self.last.1; // refinement queries the same voxel many times in a row
         }
-        let bits = self.slots.len().trailing_zeros();
-        let at = (key.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> (64 - bits)) as usize;
+        // Morton order: voxels near each other share cache lines of the table.
+        let at = (morton(v) as usize) & (self.slots.len() - 1);
         let slot = &mut self.slots[at];
         let entry = if slot[0] == key | OCCUPIED {
             slot[1] as u128 | (slot[2] as u128) << 64

@@ -33,6 +33,7 @@ pub use band::Tolerance;
 
 pub(crate) mod band;
 mod batch;
+pub mod blocked;
 pub(crate) mod intersect;
 mod quadric;
 mod queue;
@@ -128,6 +129,9 @@ pub struct SimplifyStats {
     pub rejected_band: u64,
     pub rejected_sweep: u64,
     pub rejected_intersection: u64,
+    /// Collapses a block's pass left to the seam pass: they would have moved the surface onto
+    /// the block's box (docs/design.md, "Blocks").
+    pub deferred_at_block_border: u64,
 }
 
 impl SimplifyStats {
@@ -138,7 +142,19 @@ impl SimplifyStats {
             Reject::Band => &mut self.rejected_band,
             Reject::Sweep => &mut self.rejected_sweep,
             Reject::Intersection => &mut self.rejected_intersection,
+            Reject::Border => &mut self.deferred_at_block_border,
         } += 1;
+    }
+
+    fn add(&mut self, o: &SimplifyStats) {
+        self.collapses += o.collapses;
+        self.collapses_in_plane += o.collapses_in_plane;
+        self.rejected_topology += o.rejected_topology;
+        self.rejected_flip += o.rejected_flip;
+        self.rejected_band += o.rejected_band;
+        self.rejected_sweep += o.rejected_sweep;
+        self.rejected_intersection += o.rejected_intersection;
+        self.deferred_at_block_border += o.deferred_at_block_border;
     }
 }
 
@@ -166,17 +182,15 @@ fn simplify_in_pool(
     opts: SimplifyOptions,
     stop: &(dyn Fn() -> bool + Sync),
 ) -> Option<(Mesh, SimplifyStats)> {
-    let radii = [opts.tolerance.outside, opts.tolerance.inside, opts.sweep];
-    assert!(
-        opts.min_radius > 0.0
-            && radii
-                .iter()
-                .all(|r| (band::HALF_DIAGONAL..band::CENTRE_REACH).contains(r))
-    );
-    let t_count = mesh.triangles.len();
-    let n = mesh.positions.len();
-    let mut s = State::new(mesh);
-    let mut all = Vec::with_capacity(3 * t_count / 2);
+    let s = State::new(mesh);
+    let heap = Queue::new(all_edges(&s));
+    let s = run_batches(s, heap, HashMap::new(), cls, opts, stop)?;
+    Some((s.compact(), s.stats))
+}
+
+/// Every edge of the mesh as a candidate, once.
+fn all_edges(s: &State) -> Vec<queue::Candidate> {
+    let mut all = Vec::with_capacity(3 * s.tris.len() / 2);
     for tri in &s.tris {
         for k in 0..3 {
             let (a, b) = (tri[k], tri[(k + 1) % 3]);
@@ -185,7 +199,33 @@ fn simplify_in_pool(
             }
         }
     }
-    let mut heap = Queue::new(all);
+    all
+}
+
+/// The radii the proximity memo decides (a checked precondition of every pass).
+fn check_radii(opts: &SimplifyOptions) {
+    let radii = [opts.tolerance.outside, opts.tolerance.inside, opts.sweep];
+    assert!(
+        opts.min_radius > 0.0
+            && radii
+                .iter()
+                .all(|r| (band::HALF_DIAGONAL..band::CENTRE_REACH).contains(r))
+    );
+}
+
+/// Collapses candidates from `heap` in batches until none is left (or the target count is
+/// reached); `parked` holds rejected edges by endpoint, retried when a collapse changes the
+/// triangles around them. None when `stop` said yes.
+fn run_batches(
+    mut s: State,
+    mut heap: Queue,
+    mut parked: HashMap<u32, Vec<u32>>,
+    cls: &Classifier,
+    opts: SimplifyOptions,
+    stop: &(dyn Fn() -> bool + Sync),
+) -> Option<State> {
+    check_radii(&opts);
+    let t_count = s.tris.len();
     // One scratch per worker thread, kept across batches.
     let scratches: Vec<Mutex<Scratch>> = (0..rayon::current_num_threads())
         .map(|_| Mutex::new(Scratch::new(cls, t_count)))
@@ -194,10 +234,7 @@ fn simplify_in_pool(
         let worker = rayon::current_thread_index().unwrap_or(0) % scratches.len();
         scratches[worker].lock().expect("one user per worker")
     };
-    let mut gatherer = Gatherer::new(n);
-    // Rejected edges by endpoint (each under both), retried once a collapse changes the
-    // triangles around them.
-    let mut parked: HashMap<u32, Vec<u32>> = HashMap::new();
+    let mut gatherer = Gatherer::new(s.pos.len());
     // A pipeline of batches: while one commits, the next gets its local checks (on copies of
     // its regions, disjoint from those in flight); its self-intersection checks, which read the
     // committed mesh, run while the one after it is gathered. Batches, and so the result, do
@@ -243,7 +280,7 @@ fn simplify_in_pool(
             break;
         }
     }
-    Some((s.compact(), s.stats))
+    Some(s)
 }
 
 #[cfg(test)]

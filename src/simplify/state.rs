@@ -85,6 +85,8 @@ pub(super) struct Moved {
 
 #[derive(Clone, Copy, Debug)]
 pub(super) enum Reject {
+    /// A block's pass would move the surface onto its box's faces (`blocked`): left to the seams.
+    Border,
     Topology,
     Flip,
     Band,
@@ -129,6 +131,12 @@ pub(super) fn park(parked: &mut HashMap<u32, Vec<u32>>, a: u32, b: u32) {
 impl State {
     /// Stars, quadrics and the triangle hash of `mesh`.
     pub(super) fn new(mesh: Mesh) -> State {
+        Self::with_quadrics(mesh, None)
+    }
+
+    /// [`Self::new`] with each vertex's quadric given (the sum of the planes of the start
+    /// triangles it stands for), or made from `mesh`'s triangles when None.
+    pub(super) fn with_quadrics(mesh: Mesh, quadrics: Option<Vec<Quadric>>) -> State {
         let n = mesh.positions.len();
         let t_count = mesh.triangles.len();
         let mut s = State {
@@ -139,20 +147,25 @@ impl State {
             star: vec![Vec::new(); n],
             vert_alive: vec![true; n],
             version: vec![0; n],
-            quadric: vec![Quadric::default(); n],
+            quadric: Vec::new(),
             live_tris: t_count,
             stats: SimplifyStats::default(),
         };
+        let given = quadrics.is_some();
+        s.quadric = quadrics.unwrap_or_else(|| vec![Quadric::default(); n]);
+        assert_eq!(s.quadric.len(), n, "a quadric per vertex");
         for t in 0..t_count {
             let tri = s.tris[t];
             let (tris, pos) = (&s.tris, &s.pos);
             let p = tri.map(|i| pos[i as usize]);
             let start = |u: u32| Some(tris[u as usize].map(|x| pos[x as usize]));
             s.hash.insert(t as u32, &p, None, start);
-            let q = Quadric::plane(p);
+            let q = (!given).then(|| Quadric::plane(p));
             for &v in &tri {
                 s.star[v as usize].push(t as u32);
-                s.quadric[v as usize] = s.quadric[v as usize].add(&q);
+                if let Some(q) = &q {
+                    s.quadric[v as usize] = s.quadric[v as usize].add(q);
+                }
             }
         }
         s
@@ -417,6 +430,11 @@ impl State {
     }
 
     pub(super) fn compact(&self) -> Mesh {
+        self.compact_with_map().0
+    }
+
+    /// The live mesh, and each old vertex id's new one (u32::MAX: gone).
+    pub(super) fn compact_with_map(&self) -> (Mesh, Vec<u32>) {
         let mut map = vec![u32::MAX; self.pos.len()];
         let mut out = Mesh::default();
         for (t, tri) in self.tris.iter().enumerate() {
@@ -431,6 +449,6 @@ impl State {
                 map[x as usize]
             }));
         }
-        out
+        (out, map)
     }
 }

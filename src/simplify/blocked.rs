@@ -1,0 +1,361 @@
+//! The simplifier block by block (docs/design.md, "Blocks"): each block's patch of the voxel
+//! boundary is extracted and simplified on its own, blocks in parallel, with the patch's open
+//! edges locked; the patches are then welded along their locked vertices and one seam pass
+//! simplifies the whole, starting from the edges at the seams. Only one block's fine mesh per
+//! worker is held at a time, and a block's data stays in cache.
+//!
+//! What keeps it sound, beyond the checks of a single pass (`super`):
+//! - A block's pass never moves or removes a locked vertex (no candidate with a locked end), so
+//!   the patches fit together vertex for vertex.
+//! - Every triangle a block's pass moves lies in the block's closed box and touches the box's
+//!   faces only at locked vertices (each of its vertices is locked or strictly inside the box;
+//!   else the collapse is left to the seam pass). Other blocks' triangles lie in their own
+//!   boxes and likewise, so triangles of different blocks meet only at shared locked vertices
+//!   or along shared locked edges; each block's own self-intersection test covers the rest.
+//!   Collapses that keep the surface's point set move nothing and need no such rule.
+//! - The tolerance and sweep checks are local to each collapse; a collapse's swept region lies
+//!   in its block's box, and the winding numbers it changes add up whatever the order.
+//!
+//! The output does not depend on the thread count: each block is simplified on its own, in one
+//! fixed order, blocks are welded in block order, and the seam pass is deterministic.
+
+use std::collections::{HashMap, HashSet};
+use std::hash::BuildHasherDefault;
+
+use rayon::prelude::*;
+
+use super::band::{pack_cell, KeyHasher};
+use super::quadric::Quadric;
+use super::queue::Queue;
+use super::state::{park, Reject, Scratch, State};
+use super::{all_edges, check_radii, run_batches, SimplifyOptions, SimplifyStats};
+use crate::mesh::blocks::{blocks, extract_block, Block, Patch};
+use crate::mesh::classify::{Classifier, VoxelSet};
+use crate::mesh::Mesh;
+
+/// Voxels along each edge of a block: its fine mesh (about 2·B² start triangles where the
+/// surface crosses it) stays in cache, and blocks are few enough for the seams to be short.
+pub const BLOCK_VOXELS: usize = 128;
+
+/// What the block by block simplifier did.
+#[derive(Clone, Debug)]
+pub struct Simplified {
+    pub mesh: Mesh,
+    pub stats: SimplifyStats,
+    /// Triangles of the whole voxel boundary (the blocks' patches together).
+    pub triangles_start: u64,
+}
+
+/// One block after its pass: its live mesh, each vertex's quadric, which vertices are locked,
+/// and the edges left to the seam pass for the border rule (ids of `mesh`).
+struct Done {
+    mesh: Mesh,
+    quadric: Vec<Quadric>,
+    locked: Vec<bool>,
+    border: Vec<(u32, u32)>,
+    stats: SimplifyStats,
+    triangles_start: u64,
+}
+
+/// Simplify the boundary of `set` (the joined voxels of `cls`) block by block, then along the
+/// seams. `block` voxels per block edge. None when `stop` said yes.
+pub fn simplify_boundary(
+    set: &(dyn VoxelSet + Sync),
+    cls: &Classifier,
+    opts: SimplifyOptions,
+    block: usize,
+    stop: &(dyn Fn() -> bool + Sync),
+) -> Option<Simplified> {
+    simplify_boundary_with(set, cls, opts, block, Locks::Honour, stop)
+}
+
+/// Whether a block's pass keeps its locked vertices (the tests show what breaks otherwise).
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Locks {
+    Honour,
+    #[cfg(test)]
+    Ignore,
+}
+
+fn simplify_boundary_with(
+    set: &(dyn VoxelSet + Sync),
+    cls: &Classifier,
+    opts: SimplifyOptions,
+    block: usize,
+    locks: Locks,
+    stop: &(dyn Fn() -> bool + Sync),
+) -> Option<Simplified> {
+    check_radii(&opts);
+    let list = blocks(set.dims(), block);
+    // With a target count, each block stops at its share of it (by start triangles), counted
+    // first; the seam pass then stops at the target itself.
+    let shares = (opts.target_triangles > 0).then(|| {
+        let counts: Vec<usize> = list
+            .par_iter()
+            .map(|b| extract_block(set, b).mesh.triangles.len())
+            .collect();
+        let total = counts.iter().sum::<usize>().max(1);
+        counts
+            .iter()
+            .map(|&c| (opts.target_triangles * c).div_ceil(total))
+            .collect::<Vec<_>>()
+    });
+    let done: Vec<Option<Done>> = list
+        .par_iter()
+        .enumerate()
+        .map(|(n, b)| {
+            if stop() {
+                return None;
+            }
+            let target = shares.as_ref().map_or(0, |s| s[n]);
+            let mut patch = extract_block(set, b);
+            if locks != Locks::Honour {
+                patch.locked.fill(false);
+            }
+            Some(simplify_block(patch, b, cls, opts, target, stop))
+        })
+        .collect();
+    let done: Vec<Done> = done.into_iter().collect::<Option<Vec<_>>>()?;
+    if stop() {
+        return None;
+    }
+    let (mesh, quadric, seam, border, mut stats, triangles_start) = weld(done);
+    let s = State::with_quadrics(mesh, Some(quadric));
+    // Edges at the seams (and those the border rule left) are tried again; every other edge
+    // was tried last in its block on the same triangles around it, so it is parked until a
+    // collapse changes them.
+    let border: HashSet<(u32, u32)> = border.into_iter().collect();
+    let (mut queued, mut parked) = (Vec::new(), HashMap::new());
+    for c in all_edges(&s) {
+        let (a, b) = (c.a, c.b);
+        if seam[a as usize] || seam[b as usize] || border.contains(&(a.min(b), a.max(b))) {
+            queued.push(c);
+        } else {
+            park(&mut parked, a, b);
+        }
+    }
+    let s = run_batches(s, Queue::new(queued), parked, cls, opts, stop)?;
+    stats.add(&s.stats);
+    Some(Simplified {
+        mesh: s.compact(),
+        stats,
+        triangles_start,
+    })
+}
+
+/// One block's pass: candidates cheapest first, one at a time, none with a locked end.
+fn simplify_block(
+    patch: Patch,
+    block: &Block,
+    cls: &Classifier,
+    opts: SimplifyOptions,
+    target: usize,
+    stop: &(dyn Fn() -> bool + Sync),
+) -> Done {
+    let Patch { mesh, locked } = patch;
+    let triangles_start = mesh.triangles.len() as u64;
+    if mesh.triangles.is_empty() {
+        return Done {
+            mesh,
+            quadric: Vec::new(),
+            locked,
+            border: Vec::new(),
+            stats: SimplifyStats::default(),
+            triangles_start,
+        };
+    }
+    let mut s = State::new(mesh);
+    let free = |c: &super::queue::Candidate| !locked[c.a as usize] && !locked[c.b as usize];
+    let mut heap = Queue::new(all_edges(&s).into_iter().filter(free).collect());
+    let mut scratch = Scratch::new(cls, s.tris.len());
+    let mut parked = HashMap::new();
+    // Edges whose last outcome was the border rule.
+    let mut border: HashSet<(u32, u32), BuildHasherDefault<KeyHasher>> = HashSet::default();
+    let mut tried = 0u32;
+    while let Some(c) = heap.pop() {
+        if !s.is_current(&c) || !free(&c) {
+            continue;
+        }
+        tried = tried.wrapping_add(1);
+        if tried % 4096 == 0 && stop() {
+            break;
+        }
+        let region = s.region(c.a, c.b);
+        let outcome = region
+            .check(&mut scratch.prox, &opts, region.target())
+            .and_then(|plan| {
+                if !plan.in_plane {
+                    let off_box = plan.new.iter().any(|(ids, q)| {
+                        ids.iter()
+                            .zip(q)
+                            .any(|(&x, &p)| !locked[x as usize] && !block.strictly_holds(p))
+                    });
+                    if off_box {
+                        return Err(Reject::Border);
+                    }
+                    s.crosses_nothing(&mut scratch.seen, &plan)?;
+                }
+                Ok(plan)
+            });
+        let key = (c.a.min(c.b), c.a.max(c.b));
+        if matches!(outcome, Err(Reject::Border)) {
+            border.insert(key);
+        } else {
+            border.remove(&key);
+        }
+        if s.commit_batch(
+            &mut heap,
+            &mut parked,
+            vec![((c.a, c.b), outcome)],
+            Vec::new(),
+            target,
+        ) {
+            break;
+        }
+    }
+    let (mesh, map) = s.compact_with_map();
+    let mut quadric = vec![Quadric::default(); mesh.positions.len()];
+    let mut kept_locked = vec![false; mesh.positions.len()];
+    for (old, &new) in map.iter().enumerate() {
+        if new != u32::MAX {
+            quadric[new as usize] = s.quadric[old];
+            kept_locked[new as usize] = locked[old];
+        }
+    }
+    let border = border
+        .into_iter()
+        .filter_map(|(a, b)| {
+            let (a, b) = (map[a as usize], map[b as usize]);
+            (a != u32::MAX && b != u32::MAX).then_some((a.min(b), a.max(b)))
+        })
+        .collect();
+    Done {
+        mesh,
+        quadric,
+        locked: kept_locked,
+        border,
+        stats: s.stats,
+        triangles_start,
+    }
+}
+
+/// The blocks' meshes as one, welded at their locked vertices (which sit on lattice corners),
+/// in block order: (mesh, quadrics, which vertices are seam vertices, border edges, the
+/// blocks' stats, start triangles).
+#[allow(clippy::type_complexity)]
+fn weld(
+    done: Vec<Done>,
+) -> (
+    Mesh,
+    Vec<Quadric>,
+    Vec<bool>,
+    Vec<(u32, u32)>,
+    SimplifyStats,
+    u64,
+) {
+    let mut mesh = Mesh::default();
+    let (mut quadric, mut seam, mut border) = (Vec::new(), Vec::new(), Vec::new());
+    let mut stats = SimplifyStats::default();
+    let mut start = 0;
+    let mut at: HashMap<u64, u32, BuildHasherDefault<KeyHasher>> = HashMap::default();
+    for d in done {
+        stats.add(&d.stats);
+        start += d.triangles_start;
+        let ids: Vec<u32> = (0..d.mesh.positions.len())
+            .map(|v| {
+                let p = d.mesh.positions[v];
+                let fresh = mesh.positions.len() as u32;
+                let id = if d.locked[v] {
+                    let key = pack_cell(p.to_array().map(|x| x as i64));
+                    *at.entry(key).or_insert(fresh)
+                } else {
+                    fresh
+                };
+                if id == fresh {
+                    mesh.positions.push(p);
+                    quadric.push(d.quadric[v]);
+                    seam.push(d.locked[v]);
+                } else {
+                    quadric[id as usize] = quadric[id as usize].add(&d.quadric[v]);
+                }
+                id
+            })
+            .collect();
+        mesh.triangles
+            .extend(d.mesh.triangles.iter().map(|t| t.map(|v| ids[v as usize])));
+        border.extend(d.border.iter().map(|&(a, b)| {
+            let (a, b) = (ids[a as usize], ids[b as usize]);
+            (a.min(b), a.max(b))
+        }));
+    }
+    (mesh, quadric, seam, border, stats, start)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::classify::test_support::random;
+    use crate::mesh::manifold::Joined;
+    use crate::simplify::band::HALF_DIAGONAL;
+    use crate::simplify::Tolerance;
+
+    fn opts() -> SimplifyOptions {
+        SimplifyOptions {
+            tolerance: Tolerance {
+                outside: 1.466,
+                inside: 1.466,
+            },
+            sweep: 1.486,
+            min_radius: 0.05,
+            target_triangles: 0,
+        }
+    }
+
+    /// Rough random voxel sets cut into small blocks: the welded, simplified mesh is a closed
+    /// 2-manifold whatever the block size; a block pass that may move its locked (seam)
+    /// vertices leaves the patches apart, and the same check fails.
+    #[test]
+    fn seams_weld_into_a_manifold_and_fail_without_locks() {
+        assert!(opts().tolerance.outside > HALF_DIAGONAL);
+        for seed in 0..3 {
+            let cls = random([18, 16, 14], seed);
+            let joined = Joined::new(&cls);
+            let start = crate::mesh::extract::extract(&joined).triangles.len() as u64;
+            for size in [2, 5, 7, 64] {
+                let out = simplify_boundary(&joined, &cls, opts(), size, &|| false).unwrap();
+                assert_eq!(out.triangles_start, start);
+                let defects = out.mesh.manifold_defects();
+                assert!(
+                    defects.is_manifold() && out.mesh.unpaired_edges().is_empty(),
+                    "seed {seed}, blocks of {size}: {defects:?}"
+                );
+                assert!(out.mesh.triangles.len() * 3 < start as usize, "seed {seed}");
+            }
+            let broken =
+                simplify_boundary_with(&joined, &cls, opts(), 5, Locks::Ignore, &|| false).unwrap();
+            assert!(
+                !broken.mesh.manifold_defects().is_manifold(),
+                "seed {seed}: moving seam vertices went unnoticed"
+            );
+        }
+    }
+
+    /// The same input gives the same mesh on one thread and on four.
+    #[test]
+    fn the_result_does_not_depend_on_the_thread_count() {
+        let cls = random([20, 18, 16], 7);
+        let joined = Joined::new(&cls);
+        let run = |threads: usize| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap()
+                .install(|| {
+                    simplify_boundary(&joined, &cls, opts(), 6, &|| false)
+                        .unwrap()
+                        .mesh
+                })
+        };
+        assert_eq!(run(1), run(4));
+    }
+}
