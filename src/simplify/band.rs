@@ -36,7 +36,7 @@ impl Tolerance {
 }
 
 /// The centre of voxel `v`.
-fn centre(v: [isize; 3]) -> DVec3 {
+pub(super) fn centre(v: [isize; 3]) -> DVec3 {
     DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64) + 0.5
 }
 
@@ -253,7 +253,7 @@ impl<'c> Proximity<'c> {
 
     /// What [`Self::distance`] gives, with p's voxel and the other-class voxel whose centre is
     /// nearest to p (exact below [`CENTRE_REACH`]).
-    fn nearest(&mut self, p: DVec3) -> Near {
+    pub(super) fn nearest(&mut self, p: DVec3) -> Near {
         let v = p.floor();
         let home = [v.x as isize, v.y as isize, v.z as isize];
         let entry = self.entry(home);
@@ -496,13 +496,13 @@ impl<'c> Proximity<'c> {
 
 /// What [`Proximity::nearest`] finds about a point p.
 #[derive(Clone, Copy)]
-struct Near {
+pub(super) struct Near {
     /// dist(p, ∂W) when below [`REACH`], else REACH.
-    dist: f64,
+    pub(super) dist: f64,
     /// Whether p's voxel is inside W.
-    inside: bool,
+    pub(super) inside: bool,
     /// p's voxel.
-    home: [isize; 3],
+    pub(super) home: [isize; 3],
     /// The distance from p to its own voxel's centre.
     own_centre: f64,
     /// The distance from p to the nearest other-class voxel's centre when below
@@ -515,7 +515,7 @@ struct Near {
 impl Near {
     /// (distance to an outside centre, distance to an inside centre) from p: exact for the other class, its own voxel's centre for its own class (an
     /// upper bound, within √3/2, which `Tolerance` always admits).
-    fn centre_distances(&self) -> (f64, f64) {
+    pub(super) fn centre_distances(&self) -> (f64, f64) {
         if self.inside {
             (self.other_centre, self.own_centre)
         } else {
@@ -524,7 +524,7 @@ impl Near {
     }
 
     /// (outside voxel, inside voxel): p's own and the nearest other-class one.
-    fn pair(&self) -> Option<([isize; 3], [isize; 3])> {
+    pub(super) fn pair(&self) -> Option<([isize; 3], [isize; 3])> {
         let o = self.other?;
         Some(if self.inside {
             (o, self.home)

@@ -182,7 +182,7 @@ fn simplify_block(
         }
         let region = s.region(c.a, c.b);
         let outcome = region
-            .check(&mut scratch.prox, &opts, region.target())
+            .check(&mut scratch, &opts, region.target())
             .and_then(|plan| {
                 if !plan.in_plane {
                     let off_box = plan.new.iter().any(|(ids, q)| {

@@ -33,6 +33,7 @@ pub use band::Tolerance;
 
 pub(crate) mod band;
 mod batch;
+mod between;
 pub mod blocked;
 pub(crate) mod intersect;
 mod quadric;
@@ -250,7 +251,7 @@ fn run_batches(
             || s.commit_batch(&mut heap, &mut parked, ready, deferred, target),
             || {
                 next.par_iter()
-                    .map(|r| r.check(&mut scratch().prox, &opts, r.target()))
+                    .map(|r| r.check(&mut scratch(), &opts, r.target()))
                     .collect::<Vec<_>>()
             },
         );
@@ -497,7 +498,7 @@ mod tests {
                     let (a, b) = (tri[round % 3] as usize, tri[(round + 1) % 3] as usize);
                     let v = if round % 2 == 0 { s.pos[a] } else { s.pos[b] };
                     let region = s.region(a as u32, b as u32);
-                    let Ok(plan) = region.check(&mut scratch.prox, &defaults(), v) else {
+                    let Ok(plan) = region.check(&mut scratch, &defaults(), v) else {
                         continue;
                     };
                     if !plan.in_plane {

@@ -6,9 +6,8 @@
 use glam::DVec3;
 
 use super::quadric::{cheapest, Quadric};
-use super::state::{Plan, Reject};
+use super::state::{Plan, Reject, Scratch};
 use super::SimplifyOptions;
-use crate::simplify::band::Proximity;
 
 /// The triangles around edge (a, b) and their vertices, copied from the mesh when the edge joins
 /// a batch. The regions of the batches in flight are disjoint (their vertex sets), and a commit
@@ -97,7 +96,7 @@ impl Region {
     /// the worker's distance memo).
     pub fn check(
         &self,
-        prox: &mut Proximity,
+        scratch: &mut Scratch,
         opts: &SimplifyOptions,
         v: DVec3,
     ) -> Result<Plan, Reject> {
@@ -162,7 +161,15 @@ impl Region {
         let new: Vec<([u32; 3], [DVec3; 3])> = changed.iter().map(|c| (c.ids, c.new)).collect();
         let in_plane = self.keeps_surface(v);
         if !in_plane {
-            band_and_sweep(prox, opts, v, &old, &new)?;
+            // What the collapse takes away or moves, at its old places.
+            let swept: Vec<[DVec3; 3]> = self
+                .tris
+                .iter()
+                .zip(&old)
+                .filter(|((t, _), _)| shared.contains(t) || changed.iter().any(|c| c.id == *t))
+                .map(|(_, p)| *p)
+                .collect();
+            band_and_sweep(scratch, opts, v, &old, &swept, &new)?;
         }
         let (qa, qb) = (&self.vert(a).2, &self.vert(b).2);
         let qv = qa.add(qb);
@@ -309,14 +316,17 @@ struct Survivor {
 }
 
 /// The band and sweep checks of a collapse to `v`: the triangles around the edge at their `old`
-/// places, `new` the survivors that move (ids after the collapse, new places).
+/// places (those it removes or moves: `swept`), `new` the survivors that move (ids after the
+/// collapse, new places).
 fn band_and_sweep(
-    prox: &mut Proximity,
+    scratch: &mut Scratch,
     opts: &SimplifyOptions,
     v: DVec3,
     old: &[[DVec3; 3]],
+    swept: &[[DVec3; 3]],
     new: &[([u32; 3], [DVec3; 3])],
 ) -> Result<(), Reject> {
+    let prox = &mut scratch.prox;
     // The tolerance volume for the new surface; the new vertex first, the likeliest to be out.
     let (tol, r_min) = (opts.tolerance, opts.min_radius);
     if !prox.point_within(v, tol)
@@ -326,12 +336,20 @@ fn band_and_sweep(
     {
         return Err(Reject::Band);
     }
-    // The region swept by the collapse: every point of the tetrahedra (old triangle, v) must be
-    // within `sweep` < δ of an outside voxel's centre, hence outside the swept volume. A
-    // tetrahedron with v at a corner of its triangle is that flat triangle, which passes when
-    // tol.outside <= sweep: every live triangle lies in T (a checked one) or is an unchanged face
-    // of the joined voxels, on a voxel outside W (within √3/2 of its centre).
+    // The region swept by the collapse: every point whose winding number it changes must be
+    // within `sweep` < δ of an outside voxel's centre, hence outside the swept volume. First as
+    // the region between the old and the new surface (`between`), where a projection lays
+    // each over the plane once; else as the tetrahedra (old triangle, v). A tetrahedron with v
+    // at a corner of its triangle is that flat triangle, which passes when tol.outside <= sweep:
+    // every live triangle lies in T (a checked one) or is an unchanged face of the joined
+    // voxels, on a voxel outside W (within √3/2 of its centre).
     let sweep = opts.sweep;
+    let moved: Vec<[DVec3; 3]> = new.iter().map(|(_, q)| *q).collect();
+    match prox.between_shallow(&mut scratch.between, swept, &moved, sweep, r_min) {
+        Some(true) => return Ok(()),
+        Some(false) => return Err(Reject::Sweep),
+        None => {}
+    }
     for p in old {
         if tol.outside <= sweep && p.contains(&v) {
             continue;

@@ -6,6 +6,7 @@ use std::collections::HashMap;
 use glam::DVec3;
 
 use super::band::Proximity;
+use super::between::Between;
 use super::intersect::{bounds, bounds_meet, boxes_meet, conflict, TriangleHash};
 use super::quadric::{cheapest, Quadric};
 use super::queue::{bucket, Candidate, Queue};
@@ -19,6 +20,7 @@ pub(super) struct Scratch<'c> {
     /// Distance memo, sized for the voxels near the surface: about two per start triangle.
     pub(super) prox: Proximity<'c>,
     pub(super) seen: IdSet,
+    pub(super) between: Between,
 }
 
 impl<'c> Scratch<'c> {
@@ -26,6 +28,7 @@ impl<'c> Scratch<'c> {
         Scratch {
             prox: Proximity::with_capacity(cls, 2 * triangles),
             seen: IdSet::new(triangles),
+            between: Between::default(),
         }
     }
 }
