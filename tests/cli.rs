@@ -354,3 +354,48 @@ fn protocol_names_are_the_files_a_run_writes() {
     assert_eq!(written, want);
     assert_eq!(names["job_files"]["job_json"], "job.json");
 }
+
+/// The outputs do not depend on the thread count: the bundled example's mesh and depth images
+/// are byte-identical on one thread and on two (the report differs in timings only).
+#[test]
+fn outputs_are_the_same_on_one_thread_and_on_two() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = |threads: &str| {
+        let out = dir.path().join(format!("t{threads}"));
+        let status = std::process::Command::new(env!("CARGO_BIN_EXE_sweptvol"))
+            .args(run_args(
+                Path::new("examples/bunny.glb"),
+                Path::new("examples/bunny-vibration.csv"),
+                &out,
+                &["--resolution", "80", "--also", "stl"],
+            ))
+            .env("RAYON_NUM_THREADS", threads)
+            .env("RUST_LOG", "warn")
+            .status()
+            .unwrap();
+        assert!(status.success());
+        let mut files: Vec<(String, Vec<u8>)> = fs::read_dir(&out)
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .filter(|p| !p.to_string_lossy().ends_with(".report.json"))
+            .map(|p| {
+                (
+                    p.file_name().unwrap().to_string_lossy().into_owned(),
+                    fs::read(&p).unwrap(),
+                )
+            })
+            .collect();
+        files.sort();
+        files
+    };
+    let (one, two) = (run("1"), run("2"));
+    assert_eq!(
+        one.len(),
+        8,
+        "mesh, STL, six depth images: {:?}",
+        one.iter().map(|f| &f.0).collect::<Vec<_>>()
+    );
+    for ((name, a), (_, b)) in one.iter().zip(&two) {
+        assert!(a == b, "{name} differs between one thread and two");
+    }
+}

@@ -1,23 +1,28 @@
 //! Will a run fit in memory? An estimate from the grid alone, checked before anything large is
 //! allocated, against what the machine and the process's address-space limit leave.
 //!
-//! Estimate, bytes, with P = dy·dz + dx·dz + dx·dy the pixels of the three image axes:
+//! Estimate, bytes, with P = dy·dz + dx·dz + dx·dy the pixels of the three image axes and
+//! V = dx·dy·dz the voxels:
 //! - depth images D⁻ and D⁺, f32: 8 B per pixel; classifier range tables, i32 lo and hi: 8 B;
-//! - the voxel boundary mesh, T ≈ 2.8P triangles (each hit pixel's ray enters and leaves the
-//!   volume at least once, two triangles per face; 2.83P measured on the bundled bunny at
-//!   n = 1024 and 1500, up to 4P for a box filling the grid), and the simplifier's state on it:
-//!   250 B per start triangle at the peak (measured: 1.95 GB for 7.5e6 triangles at n = 1024,
-//!   4.04 GB for 16.1e6 at n = 1500), 30 B more with --keep-start-mesh (its GLB bytes are held
-//!   until the write);
-//! - with the flood classification (`mesh::flood`), two bits per voxel: the offset's reach and
-//!   the flood (nx·ny·nz / 4 bytes; 190 MB at 1500 × 600 × 850, a few percent of the rest);
+//! - every voxel's class as one bit (`Classifier::solidify`), and with the flood classification
+//!   (`mesh::flood`) one more: the offset's reach, then the flood (V / 4 bytes at the peak;
+//!   646 MB for the bunny at n = 1500, 1500 × 1443 × 1193 voxels);
+//! - the simplifier, block by block (`simplify::blocked`): each worker thread holds one block's
+//!   patch of the voxel boundary and its state, at most about 250 B per triangle for
+//!   8.4·B² triangles (B = 128 voxels: 34 MB); the blocks' results, welded, and the seam pass's
+//!   state on them: 250 B per triangle for [`SEAM_SHARE`] of the start triangles, T ≈ 2.8P
+//!   (each hit pixel's ray enters and leaves the volume at least once, two triangles per face;
+//!   2.83P measured on the bundled bunny at n = 1024 and 1500);
+//! - with --keep-start-mesh, the whole voxel boundary at once and its GLB bytes: 54 B per start
+//!   triangle;
 //! - BASE_BYTES for the program, its threads and the inputs. Poses do not count: the sweep's
 //!   input holds the rows and the motion's intervals, and the sub-poses between them are made a
 //!   batch at a time (`input::poses`), however many the motion needs.
 //!
-//! So about 716·P bytes, growing with n²: 4.1 GB estimated for the bunny at n = 1500, where
-//! 4.04 GB was measured (docs/benchmarks.md). An estimate, not a bound: a shape with more
-//! boundary per pixel can need more, and a run just under the limit may still fail late.
+//! So about 30·P + V / 4 bytes with the flood, plus 34 MB per thread: 1.0 GB estimated for the
+//! bunny at n = 1500 on 2 threads, where 0.90 GB was measured (docs/benchmarks.md). An
+//! estimate, not a bound: a shape with more boundary per pixel can need more, and a run just
+//! under the limit may still fail late.
 
 use crate::error::{OptionError, OptionKey};
 use crate::input::grid::Grid;
@@ -28,10 +33,20 @@ const BASE_BYTES: f64 = 32.0 * 1048576.0;
 const IMAGE_BYTES_PER_PIXEL: f64 = 16.0;
 /// Start-mesh triangles per pixel.
 const TRIANGLES_PER_PIXEL: f64 = 2.8;
-/// Start mesh and simplifier at the peak, per start triangle.
+/// Voxels along a simplification block's edge: must be kept in step with
+/// `simplify::blocked::BLOCK_VOXELS` (a test there checks it).
+pub const BLOCK_VOXELS: usize = 128;
+/// A mesh and the simplifier's state on it, per triangle.
 const BYTES_PER_TRIANGLE: f64 = 250.0;
-/// The start mesh's GLB bytes, per triangle, with --keep-start-mesh.
-const START_GLB_BYTES_PER_TRIANGLE: f64 = 30.0;
+/// The share of the start triangles the blocks leave to the seam pass (2.2-2.4% measured on
+/// the bunny at n = 512 and 1500, blocks of 128 voxels).
+const SEAM_SHARE: f64 = 0.04;
+/// One block's start triangles at most, per voxel² of the block's edge (three faces' worth of
+/// pixels, 2.8 triangles each).
+const BLOCK_TRIANGLES_PER_VOXEL2: f64 = 8.4;
+/// The whole start mesh (positions and triangles) and its GLB bytes, per triangle, with
+/// --keep-start-mesh.
+const START_MESH_BYTES_PER_TRIANGLE: f64 = 54.0;
 
 /// Pixels of the three image axes.
 fn pixels(grid: &Grid) -> f64 {
@@ -39,18 +54,26 @@ fn pixels(grid: &Grid) -> f64 {
     y * z + x * z + x * y
 }
 
-/// Estimated peak memory of a run on `grid`, bytes (`flood`: the flood classification).
+/// Estimated peak memory of a run on `grid`, bytes (`flood`: the flood classification), with
+/// the simplifier on the current thread pool's workers.
 pub fn estimate(grid: &Grid, keep_start_mesh: bool, flood: bool) -> f64 {
-    let pixels = pixels(grid);
-    let per_triangle = BYTES_PER_TRIANGLE
-        + if keep_start_mesh {
-            START_GLB_BYTES_PER_TRIANGLE
-        } else {
-            0.0
-        };
+    estimate_on(grid, keep_start_mesh, flood, rayon::current_num_threads())
+}
+
+/// [`estimate`] on `workers` threads.
+pub fn estimate_on(grid: &Grid, keep_start_mesh: bool, flood: bool, workers: usize) -> f64 {
+    let triangles = TRIANGLES_PER_PIXEL * pixels(grid);
     let [x, y, z] = grid.dims.map(f64::from);
-    let bits = if flood { x * y * z / 4.0 } else { 0.0 };
-    BASE_BYTES + pixels * (IMAGE_BYTES_PER_PIXEL + TRIANGLES_PER_PIXEL * per_triangle) + bits
+    let bits = x * y * z / 8.0 * if flood { 2.0 } else { 1.0 };
+    let block = BLOCK_VOXELS as f64;
+    let blocks = workers as f64 * BYTES_PER_TRIANGLE * BLOCK_TRIANGLES_PER_VOXEL2 * block * block;
+    let seams = SEAM_SHARE * triangles * BYTES_PER_TRIANGLE;
+    let start = if keep_start_mesh {
+        START_MESH_BYTES_PER_TRIANGLE * triangles
+    } else {
+        0.0
+    };
+    BASE_BYTES + IMAGE_BYTES_PER_PIXEL * pixels(grid) + bits + blocks + seams + start
 }
 
 /// Memory this process can still get, bytes: the least of MemAvailable (/proc/meminfo),
@@ -136,7 +159,7 @@ pub fn check(
     }
     let gib = |b: f64| b / 1073741824.0;
     Err(OptionError::new(OptionKey::Resolution, format!(
-        "resolution {n} needs an estimated {:.1} GiB of memory (grid {}x{}x{}: depth images, classifier ranges, about {:.2e} start-mesh triangles and the simplifier), but only {:.1} GiB is available (MemAvailable, RLIMIT_AS, cgroup memory.max); nothing was allocated: use $resolution {fit} or less, or $tolerance {:.3e} or more (the estimate is made for parts that fill their box; for a thin or sparse part, $no_memory_check runs anyway)",
+        "resolution {n} needs an estimated {:.1} GiB of memory (grid {}x{}x{}: depth images, classifier ranges, a bit per voxel, the simplifier's blocks and seams over about {:.2e} start-mesh triangles), but only {:.1} GiB is available (MemAvailable, RLIMIT_AS, cgroup memory.max); nothing was allocated: use $resolution {fit} or less, or $tolerance {:.3e} or more (the estimate is made for parts that fill their box; for a thin or sparse part, $no_memory_check runs anyway)",
         gib(need),
         grid.dims[0],
         grid.dims[1],
@@ -160,14 +183,15 @@ mod tests {
     }
 
     #[test]
-    fn estimate_grows_with_n_squared_and_the_suggestion_fits() {
+    fn estimate_grows_with_the_grid_and_the_suggestion_fits() {
         let (a, b) = (
             estimate(&grid(1024), false, false),
             estimate(&grid(2048), false, false),
         );
+        // Between n² (images, meshes) and n³ (the voxel bits).
+        assert!(b / a > 4.0 && b / a < 8.0, "{a} -> {b}");
         assert!(
-            (b - BASE_BYTES) / (a - BASE_BYTES) > 3.99
-                && (b - BASE_BYTES) / (a - BASE_BYTES) < 4.01
+            estimate_on(&grid(1024), false, false, 8) > estimate_on(&grid(1024), false, false, 2)
         );
         assert!(estimate(&grid(1024), true, false) > a);
         assert!(estimate(&grid(1024), false, true) > a);

@@ -120,6 +120,10 @@ fn simplify_boundary_with(
         return None;
     }
     let (mesh, quadric, seam, border, mut stats, triangles_start) = weld(done);
+    tracing::info!(
+        "blocks simplified: {triangles_start} start triangles down to {}; simplifying along the seams",
+        mesh.triangles.len()
+    );
     let s = State::with_quadrics(mesh, Some(quadric));
     // Edges at the seams (and those the border rule left) are tried again; every other edge
     // was tried last in its block on the same triangles around it, so it is parked until a
@@ -338,6 +342,11 @@ mod tests {
                 "seed {seed}: moving seam vertices went unnoticed"
             );
         }
+    }
+
+    #[test]
+    fn the_memory_estimate_knows_the_block_size() {
+        assert_eq!(BLOCK_VOXELS, crate::input::memory::BLOCK_VOXELS);
     }
 
     /// The same input gives the same mesh on one thread and on four.
