@@ -9,14 +9,16 @@
 //!   (wgpu) or its CPU twin (paper section 4); [`sweep::backend`] chooses which.
 //! - [`depth`]: the six images and their encoding, the contract between the sweep and the mesh
 //!   stage (it imports nothing from `sweep`).
-//! - [`voxels`]: one bit per voxel, for the offset's reach ([`sweep::reach`]) and the flood.
+//! - [`voxels`]: one bit per voxel, for the offset's reach ([`sweep::reach`]), the flood and the
+//!   classes.
 //! - [`mesh`]: voxels classified by condition ⋆ ([`mesh::classify`]) less what a flood from
 //!   outside reaches ([`mesh::flood`]), pinches joined so the
 //!   boundary is a 2-manifold ([`mesh::manifold`]), the voxel boundary extracted
-//!   ([`mesh::extract`]).
-//! - [`simplify`]: edge collapses inside the tolerance volume (paper section 5): quadric costs,
-//!   a queue, disjoint batches, per-region checks (band, sweep, topology), then the
-//!   self-intersection check and the commit on the shared state.
+//!   ([`mesh::extract`]), or one block's patch of it ([`mesh::blocks`]).
+//! - [`simplify`]: edge collapses inside the tolerance volume (paper section 5), block by block
+//!   and then along the seams ([`simplify::blocked`]): quadric costs, a queue, per-region checks
+//!   (band, sweep, topology), then the self-intersection check and the commit.
+//! - [`surface`]: the mesh stage as one function, images in, mesh out, for every caller.
 //! - [`pipeline`]: one run, files in to files out, with its named outputs and its report;
 //!   [`watch`] and `main.rs` are its shells.
 //! - [`verify`]: an independent certificate for any swept-volume mesh.

@@ -100,6 +100,9 @@ fn simplify_boundary_with(
             .map(|&c| (opts.target_triangles * c).div_ceil(total))
             .collect::<Vec<_>>()
     });
+    // Progress for long runs: a line at every tenth of the blocks.
+    let finished = std::sync::atomic::AtomicUsize::new(0);
+    let tenth = list.len().div_ceil(10).max(1);
     let done: Vec<Option<Done>> = list
         .par_iter()
         .enumerate()
@@ -112,7 +115,12 @@ fn simplify_boundary_with(
             if locks != Locks::Honour {
                 patch.locked.fill(false);
             }
-            Some(simplify_block(patch, b, cls, opts, target, stop))
+            let out = simplify_block(patch, b, cls, opts, target, stop);
+            let k = finished.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
+            if k % tenth == 0 && k < list.len() {
+                tracing::info!("simplified {k} of {} blocks", list.len());
+            }
+            Some(out)
         })
         .collect();
     let done: Vec<Done> = done.into_iter().collect::<Option<Vec<_>>>()?;
