@@ -7,6 +7,8 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
 
 use clap::{Args, Parser, Subcommand};
+use std::io::Write;
+
 use indicatif::{ProgressBar, ProgressStyle};
 
 use sweptvol::cluster;
@@ -575,28 +577,31 @@ fn cluster(command: ClusterCommand) -> anyhow::Result<()> {
                 backend: args.run.backend.into(),
             })?;
             match &s.sweep_job {
-                Some(id) => println!(
-                    "submitted shards {} of {} as array job {id}, and the merge as job {} (runs after all succeed)",
+                Some(id) => say(format_args!(
+                    "submitted shards {} of {} as array job {id}, and the merge as job {} (runs after all succeed)\n",
                     cluster::list(&s.swept),
                     s.shards,
                     s.merge_job
-                ),
-                None => println!(
-                    "every shard is finished; submitted the merge as job {}",
+                ))?,
+                None => say(format_args!(
+                    "every shard is finished; submitted the merge as job {}\n",
                     s.merge_job
-                ),
+                ))?,
             }
-            println!("progress: sweptvol cluster status {}", shard_dir.display());
-            println!("outputs:  {}", s.out_dir.display());
+            say(format_args!(
+                "progress: sweptvol cluster status {}\noutputs:  {}\n",
+                shard_dir.display(),
+                s.out_dir.display()
+            ))?;
             Ok(())
         }
         ClusterCommand::Status(args) => {
             let st = cluster::status(&args.dir, true)?;
             if args.json {
-                println!("{}", serde_json::to_string_pretty(&st)?);
+                say(format_args!("{}\n", serde_json::to_string_pretty(&st)?))?;
                 return Ok(());
             }
-            print!("{}", cluster::describe(&st));
+            say(format_args!("{}", cluster::describe(&st)))?;
             Ok(())
         }
     }
@@ -682,9 +687,9 @@ fn verify(args: VerifyArgs) -> anyhow::Result<ExitCode> {
     let report = sweptvol::verify::verify(&opts, &bar)?;
     bar.0.finish_and_clear();
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&report)?);
+        say(format_args!("{}\n", serde_json::to_string_pretty(&report)?))?;
     } else {
-        print!("{}", report.text());
+        say(format_args!("{}", report.text()))?;
     }
     Ok(if report.passed {
         ExitCode::SUCCESS
@@ -717,6 +722,9 @@ fn main() -> ExitCode {
                 .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default_level)),
         )
         .with_writer(std::io::stderr)
+        // A closed stderr (`2>&1 | head`) must not end the job: log lines that cannot be
+        // written are dropped, not reported on the same closed stderr (which panics).
+        .log_internal_errors(false)
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .with_target(false)
         .init();
@@ -727,15 +735,15 @@ fn main() -> ExitCode {
         Command::Cluster(c) => cluster(c).map(|()| ExitCode::SUCCESS),
         Command::Watch(args) => watch(args).map(|()| ExitCode::SUCCESS),
         Command::Verify(args) => verify(args),
-        Command::Protocol => {
-            println!("{:#}", watch::protocol::names_json());
-            Ok(ExitCode::SUCCESS)
-        }
+        Command::Protocol => say(format_args!("{:#}\n", watch::protocol::names_json()))
+            .map(|()| ExitCode::SUCCESS)
+            .map_err(anyhow::Error::from),
     };
     match result {
         Ok(code) => code,
         Err(e) => {
-            eprintln!("error: {}", in_cli_terms(&e));
+            // A closed stderr must not turn an error into a panic either.
+            let _ = writeln!(std::io::stderr(), "error: {}", in_cli_terms(&e));
             // 2: the input or the options are wrong; 1: anything else.
             if error::is_user_error(&e) {
                 ExitCode::from(2)
@@ -743,6 +751,16 @@ fn main() -> ExitCode {
                 ExitCode::from(1)
             }
         }
+    }
+}
+
+/// Write `text` to stdout. A reader that went away (a closed pipe: `| head`) ends the output
+/// quietly, as ripgrep does; the command carries on and exits as it would have.
+fn say(text: std::fmt::Arguments) -> std::io::Result<()> {
+    let mut out = std::io::stdout().lock();
+    match out.write_fmt(text).and_then(|()| out.flush()) {
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Ok(()),
+        other => other,
     }
 }
 

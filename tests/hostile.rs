@@ -480,3 +480,72 @@ fn truncated_corrupted_and_out_of_range_generators_are_refused() {
         &["index.gltf", "99"],
     );
 }
+
+/// Issue 30, defect 1: a closed stderr (`run ... 2>&1 | head -1`) panicked and lost the whole
+/// computation, and a closed stdout panicked `protocol`. Now a run whose log reader went away
+/// after one line still writes every output and exits 0; so does `mesh --from`; `protocol`
+/// into a closed pipe exits 0 quietly.
+#[test]
+fn closed_pipes_end_quietly_and_lose_nothing() {
+    use std::io::BufRead;
+    use std::process::Stdio;
+    let dir = tempfile::tempdir().unwrap();
+    let with_log_closed = |args: &[String]| {
+        let mut child = Command::new(BIN)
+            .args(args)
+            .env("RUST_LOG", "info")
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        let mut line = String::new();
+        std::io::BufReader::new(child.stderr.take().unwrap())
+            .read_line(&mut line)
+            .unwrap();
+        assert!(!line.is_empty(), "no log line to read");
+        child.wait().unwrap()
+    };
+    let g = Path::new("examples/bunny.glb");
+    let t = Path::new("examples/bunny-vibration.csv");
+    let out = dir.path().join("run");
+    let mut args = run_args(g, t, &out, &["--resolution", "24"]);
+    args.retain(|a| a != "--quiet");
+    let code = with_log_closed(&args);
+    assert!(code.success(), "run: {code}");
+    assert_eq!(
+        fs::read_dir(&out).unwrap().count(),
+        8,
+        "run: an output is missing"
+    );
+
+    // The same job as one shard, merged with the log closed.
+    let shards = dir.path().join("shards");
+    let mut sweep = run_args(g, t, &shards, &["--resolution", "24", "--shard", "1/1"]);
+    sweep[0] = "sweep".into();
+    assert!(sweptvol(&sweep).status.success());
+    let merged = dir.path().join("merged");
+    let code = with_log_closed(&[
+        "mesh".into(),
+        "--from".into(),
+        shards.to_string_lossy().into_owned(),
+        "--out".into(),
+        merged.to_string_lossy().into_owned(),
+    ]);
+    assert!(code.success(), "mesh: {code}");
+    assert_eq!(
+        fs::read_dir(&merged).unwrap().count(),
+        8,
+        "mesh: an output is missing"
+    );
+
+    // stdout closed before anything is read.
+    let mut child = Command::new(BIN)
+        .arg("protocol")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    drop(child.stdout.take());
+    let o = child.wait_with_output().unwrap();
+    assert!(o.status.success(), "protocol: {} {}", o.status, stderr(&o));
+    assert!(!stderr(&o).contains("panicked"), "{}", stderr(&o));
+}

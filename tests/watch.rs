@@ -850,3 +850,38 @@ fn absurd_job_json_values_fail_their_job_by_name() {
     assert_eq!(state(&good.join("status.json")), "done", "{log}");
     assert_eq!(input_files(&dir), before);
 }
+
+/// Issue 30, defect 2: `watch DIR --once 2>&1 | head -1` hung with one job (a log line written
+/// to the closed pipe panicked a worker). With stderr closed after the first line, the job
+/// still runs to "done" and the daemon exits 0.
+#[test]
+fn a_closed_log_pipe_neither_hangs_nor_loses_the_job() {
+    use std::io::BufRead;
+    let (_tmp, dir) = watched();
+    let job = small_job(&dir, "bracket");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_sweptvol"))
+        .args(["watch", dir.to_str().unwrap(), "--once"])
+        .env("RUST_LOG", "info")
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut line = String::new();
+    std::io::BufReader::new(child.stderr.take().unwrap())
+        .read_line(&mut line)
+        .unwrap();
+    // The reader is gone now: every later log line meets a closed pipe.
+    let t0 = Instant::now();
+    let code = loop {
+        if let Some(code) = child.try_wait().unwrap() {
+            break code;
+        }
+        if t0.elapsed() > Duration::from_secs(120) {
+            child.kill().unwrap();
+            panic!("the daemon hung after its log pipe closed");
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    assert!(code.success(), "{code}");
+    let s = status(&job.join("status.json")).expect("status.json");
+    assert_eq!(s["state"], "done", "{s:#}");
+}
