@@ -885,3 +885,21 @@ fn a_closed_log_pipe_neither_hangs_nor_loses_the_job() {
     let s = status(&job.join("status.json")).expect("status.json");
     assert_eq!(s["state"], "done", "{s:#}");
 }
+
+/// Issue 30, defect 5: `.sweptvol/lock` planted as a symbolic link made the daemon create the
+/// link's target outside the folder. It now refuses, naming the link, and writes nothing
+/// outside.
+#[test]
+fn a_lock_planted_as_a_link_writes_nothing_outside() {
+    let (tmp, dir) = watched();
+    let outside = tmp.path().join("outside");
+    fs::create_dir(&outside).unwrap();
+    let target = outside.join("created-by-the-daemon");
+    fs::create_dir(dir.join(".sweptvol")).unwrap();
+    std::os::unix::fs::symlink(&target, dir.join(".sweptvol/lock")).unwrap();
+    let (code, log) = once(&dir, &[]);
+    assert!(!code.success(), "{log}");
+    assert!(log.contains("symbolic link"), "{log}");
+    assert!(!target.exists(), "the daemon created {}", target.display());
+    assert_eq!(fs::read_dir(&outside).unwrap().count(), 0);
+}

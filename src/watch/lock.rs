@@ -3,6 +3,7 @@
 //! that clients read to tell whether a daemon is alive.
 
 use std::fs::{self, File, OpenOptions};
+use std::os::unix::fs::OpenOptionsExt;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -55,13 +56,26 @@ pub fn acquire(root: &Path) -> anyhow::Result<DaemonLock> {
     }
     fs::create_dir_all(&dir).with_context(|| format!("could not create {}", dir.display()))?;
     let lock_path = dir.join("lock");
+    // O_NOFOLLOW: a lock planted as a symbolic link must not make the daemon create or touch
+    // the link's target outside DIR (opening a link with it fails with ELOOP).
     let file = OpenOptions::new()
         .read(true)
         .write(true)
         .create(true)
         .truncate(false)
+        .custom_flags(libc::O_NOFOLLOW)
         .open(&lock_path)
-        .with_context(|| format!("could not open {}", lock_path.display()))?;
+        .map_err(|e| {
+            if fs::symlink_metadata(&lock_path).is_ok_and(|m| m.file_type().is_symlink()) {
+                anyhow::anyhow!(
+                    "{} is a symbolic link: sweptvol watch writes nothing outside {}; remove the link and start again",
+                    lock_path.display(),
+                    root.display()
+                )
+            } else {
+                anyhow::Error::new(e).context(format!("could not open {}", lock_path.display()))
+            }
+        })?;
     let info_path = dir.join(super::protocol::HEARTBEAT_FILE);
     if !try_lock(&file).with_context(|| format!("could not lock {}", lock_path.display()))? {
         let holder = fs::read(&info_path)
