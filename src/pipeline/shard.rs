@@ -463,7 +463,12 @@ pub fn merge(
     let mut seconds = 0.0;
     for (path, m) in &set.shards {
         let data = check_data(path, m)?;
-        decode_into(&data, &mut encoded, reach.as_mut()).map_err(|e| {
+        // Depths lie within the rendered radius of the grid along their axis (grid units).
+        let limits = [0, 1, 2].map(|a| {
+            let margin = input.radius + 1.0;
+            (-margin, input.grid.dims[a] as f32 + margin)
+        });
+        decode_into(&data, &mut encoded, reach.as_mut(), limits).map_err(|e| {
             InputError::new(
                 &path.with_file_name(&m.data),
                 e,
@@ -689,10 +694,13 @@ fn encode_data(swept: &Swept) -> Vec<u8> {
 }
 
 /// Merge one shard's data into the encoded buffers (min of D⁻, max of D⁺) and the reach (OR).
+/// Every pixel must be empty (both sentinels) or hold finite depths D⁻ <= D⁺ within its axis's
+/// `limits` (grid units), as a sweep writes them: a corrupt value would reach the classifier.
 fn decode_into(
     data: &[u8],
     encoded: &mut [Vec<u32>; 3],
     reach: Option<&mut VoxelBits>,
+    limits: [(f32, f32); 3],
 ) -> Result<(), String> {
     let rest = data
         .strip_prefix(MAGIC.as_slice())
@@ -708,12 +716,23 @@ fn decode_into(
     let mut values = images
         .chunks_exact(4)
         .map(|c| u32::from_le_bytes(c.try_into().expect("4 bytes")));
-    for enc in encoded.iter_mut() {
-        for pair in enc.chunks_exact_mut(2) {
+    for (axis, enc) in encoded.iter_mut().enumerate() {
+        let (least, most) = limits[axis];
+        for (pixel, pair) in enc.chunks_exact_mut(2).enumerate() {
             let (lo, hi) = (
                 values.next().unwrap_or(u32::MAX),
                 values.next().unwrap_or(0),
             );
+            if (lo, hi) != (crate::depth::EMPTY_MIN, crate::depth::EMPTY_MAX) {
+                let (a, b) = (crate::depth::decode(lo), crate::depth::decode(hi));
+                let fits = |x: f32| x.is_finite() && x >= least && x <= most;
+                if !(fits(a) && fits(b) && a <= b) {
+                    return Err(format!(
+                        "pixel {pixel} of the {} image holds depths ({a}, {b}), outside the grid's {least}..{most} (grid units) or out of order",
+                        crate::depth::AXIS_NAMES[axis]
+                    ));
+                }
+            }
             pair[0] = pair[0].min(lo);
             pair[1] = pair[1].max(hi);
         }
@@ -797,6 +816,49 @@ mod tests {
     }
 
     /// The reach's run-length code gives back the words it was given, merged by OR.
+    /// Issue 30, defect 6: depths that no sweep writes (NaN, -1e30, infinite, beyond the grid,
+    /// D⁻ > D⁺) are refused at merge, naming the pixel; a sweep's own depths pass.
+    #[test]
+    fn corrupt_depths_are_refused_at_merge() {
+        let grid = Grid {
+            origin: [0.0; 3],
+            h: 1.0,
+            dims: [6, 5, 4],
+        };
+        let limits = [0, 1, 2].map(|a| (-3.0, grid.dims[a] as f32 + 3.0));
+        let with = |lo: f32, hi: f32| {
+            let mut images = DepthImages::empty(grid);
+            images.images[1].min[3] = lo;
+            images.images[1].max[3] = hi;
+            let swept = Swept {
+                images,
+                reach: None,
+                backend: String::new(),
+                seconds: 0.0,
+            };
+            let data = encode_data(&swept);
+            let mut encoded = [0, 1, 2].map(|a| {
+                let (w, h) = depth::image_size(&grid, a);
+                (0..w * h)
+                    .flat_map(|_| [crate::depth::EMPTY_MIN, crate::depth::EMPTY_MAX])
+                    .collect::<Vec<u32>>()
+            });
+            decode_into(&data, &mut encoded, None, limits)
+        };
+        assert!(with(1.0, 2.5).is_ok());
+        for (lo, hi) in [
+            (f32::NAN, 2.0),
+            (1.0, f32::NAN),
+            (-1e30, 2.0),
+            (1.0, f32::INFINITY),
+            (1.0, 9.5),
+            (3.0, 2.0),
+        ] {
+            let e = with(lo, hi).expect_err("corrupt depths merged");
+            assert!(e.contains("pixel 3 of the y image"), "{e}");
+        }
+    }
+
     #[test]
     fn reach_round_trips() {
         let mut rng = fastrand::Rng::with_seed(7);
@@ -829,14 +891,16 @@ mod tests {
                 vec![0u32; 2 * (w * h) as usize]
             });
             let mut into = VoxelBits::new(dims);
-            decode_into(&data, &mut encoded, Some(&mut into)).unwrap();
+            let wide = [(-1e6, 1e6); 3];
+            decode_into(&data, &mut encoded, Some(&mut into), wide).unwrap();
             assert_eq!(into.words_raw(), bits.words_raw());
             // Cut anywhere in the reach: an error, never a silent partial merge.
             let depth_end = MAGIC.len() + encoded.iter().map(|e| 4 * e.len()).sum::<usize>();
             for cut in [depth_end + 1, data.len() - 1, data.len() - 8] {
                 if cut > depth_end && cut < data.len() {
                     let mut into = VoxelBits::new(dims);
-                    assert!(decode_into(&data[..cut], &mut encoded, Some(&mut into)).is_err());
+                    let cut = &data[..cut];
+                    assert!(decode_into(cut, &mut encoded, Some(&mut into), wide).is_err());
                     cuts += 1;
                 }
             }
