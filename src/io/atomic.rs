@@ -66,14 +66,88 @@ pub fn commit(tmp: &Path, path: &Path) -> anyhow::Result<()> {
 
 /// A set of outputs written under temporary names and renamed into place, one after another, by
 /// [`Staged::commit`] once all are written. Dropped before committing (an error on the way), it removes its
-/// temporary files, so a failed job leaves nothing behind.
+/// temporary files, so a failed job leaves nothing behind. With a marker, a reader (and the
+/// next run: [`clear_interrupted`]) can tell a set whose publishing was cut off.
 #[derive(Default)]
 pub struct Staged {
     /// (temporary, final) pairs not yet committed.
     files: Vec<(PathBuf, PathBuf)>,
+    /// Written before the first rename and removed after the last, listing the final names.
+    marker: Option<PathBuf>,
+}
+
+/// Test hook: with `SWEPTVOL_TEST_ABORT_AFTER_RENAMES=k`, a commit aborts the process after its
+/// k-th rename, as a crash or a kill would (tests/hostile.rs shows what the next run does).
+const ABORT_AFTER_RENAMES: &str = "SWEPTVOL_TEST_ABORT_AFTER_RENAMES";
+
+/// The final names a marker lists (one per line), if it exists.
+fn marker_list(marker: &Path) -> Option<Vec<PathBuf>> {
+    let text = fs::read_to_string(marker).ok()?;
+    Some(
+        text.lines()
+            .filter(|l| !l.is_empty())
+            .map(PathBuf::from)
+            .collect(),
+    )
+}
+
+/// The outputs an interrupted publish left under their final names: those `marker` lists, when
+/// it exists (empty otherwise). They form no complete set, so a new run may replace them.
+pub fn interrupted_set(marker: &Path) -> Vec<PathBuf> {
+    marker_list(marker).unwrap_or_default()
+}
+
+/// Whether process `pid` is alive (signal 0 reaches it, or exists but is not ours).
+fn alive(pid: u32) -> bool {
+    // SAFETY: kill with signal 0 only checks that the process exists.
+    let r = unsafe { libc::kill(pid as libc::pid_t, 0) };
+    r == 0 || std::io::Error::last_os_error().raw_os_error() != Some(libc::ESRCH)
+}
+
+/// Undo what an interrupted publish left: the outputs `marker` lists, the temporary siblings of
+/// each (`.<name>.tmp-<pid>-<n>` of a process no longer running), then the marker itself.
+/// Nothing when there is no marker. Returns the files removed.
+pub fn clear_interrupted(marker: &Path) -> anyhow::Result<Vec<PathBuf>> {
+    let Some(listed) = marker_list(marker) else {
+        return Ok(Vec::new());
+    };
+    let mut removed = Vec::new();
+    for path in &listed {
+        if fs::symlink_metadata(path).is_ok_and(|m| !m.is_dir()) {
+            fs::remove_file(path)
+                .with_context(|| format!("could not remove {}", path.display()))?;
+            removed.push(path.clone());
+        }
+        let (Some(dir), Some(name)) = (path.parent(), path.file_name()) else {
+            continue;
+        };
+        let prefix = format!(".{}.tmp-", name.to_string_lossy());
+        for e in fs::read_dir(dir).into_iter().flatten().flatten() {
+            let file = e.file_name().to_string_lossy().into_owned();
+            let Some(rest) = file.strip_prefix(&prefix) else {
+                continue;
+            };
+            let pid = rest.split('-').next().and_then(|p| p.parse::<u32>().ok());
+            if pid.is_some_and(|p| !alive(p)) {
+                fs::remove_file(e.path())
+                    .with_context(|| format!("could not remove {}", e.path().display()))?;
+                removed.push(e.path());
+            }
+        }
+    }
+    fs::remove_file(marker).with_context(|| format!("could not remove {}", marker.display()))?;
+    Ok(removed)
 }
 
 impl Staged {
+    /// A set published under `marker` (see [`Staged`]).
+    pub fn with_marker(marker: PathBuf) -> Self {
+        Staged {
+            files: Vec::new(),
+            marker: Some(marker),
+        }
+    }
+
     /// A fresh temporary file (see [`create_temp`]) to write `final_path`'s content to.
     pub fn create(&mut self, final_path: &Path) -> anyhow::Result<fs::File> {
         let (f, tmp) = create_temp(final_path)
@@ -89,25 +163,63 @@ impl Staged {
             .with_context(|| format!("could not write {}", final_path.display()))
     }
 
-    /// Flush and rename every staged file into place, then flush the folders' entries.
+    /// Flush and rename every staged file into place, then flush the folders' entries. A final
+    /// name that a rename cannot replace (a folder) is found before anything is renamed; the
+    /// marker, if any, stands while the renames run.
     pub fn commit(mut self) -> anyhow::Result<()> {
-        let dirs: Vec<PathBuf> = self
+        for (_, path) in &self.files {
+            if fs::symlink_metadata(path).is_ok_and(|m| m.is_dir()) {
+                anyhow::bail!(
+                    "{} is a folder, so the output cannot take its place; nothing was published: remove or rename the folder",
+                    path.display()
+                );
+            }
+        }
+        let mut dirs: Vec<PathBuf> = self
             .files
             .iter()
             .filter_map(|(_, p)| p.parent().map(Path::to_path_buf))
             .collect();
+        dirs.dedup();
+        if let Some(marker) = &self.marker {
+            let list: String = self
+                .files
+                .iter()
+                .map(|(_, p)| format!("{}\n", p.display()))
+                .collect();
+            write_atomic(marker, list.as_bytes())?;
+        }
+        let abort_after = std::env::var(ABORT_AFTER_RENAMES)
+            .ok()
+            .and_then(|v| v.parse::<usize>().ok());
+        let mut renamed = 0;
         while let Some((tmp, path)) = self.files.first().cloned() {
+            if abort_after == Some(renamed) {
+                std::process::abort();
+            }
             commit(&tmp, &path)?;
             self.files.remove(0);
+            renamed += 1;
         }
-        for dir in dirs {
-            #[cfg(unix)]
-            fs::File::open(&dir)
-                .and_then(|d| d.sync_all())
-                .with_context(|| format!("could not flush the folder {}", dir.display()))?;
+        sync_dirs(&dirs)?;
+        if let Some(marker) = &self.marker {
+            fs::remove_file(marker)
+                .with_context(|| format!("could not remove {}", marker.display()))?;
+            sync_dirs(&dirs)?;
         }
         Ok(())
     }
+}
+
+/// Flush the folders' entries (renames and removals) to disk.
+fn sync_dirs(dirs: &[PathBuf]) -> anyhow::Result<()> {
+    for dir in dirs {
+        #[cfg(unix)]
+        fs::File::open(dir)
+            .and_then(|d| d.sync_all())
+            .with_context(|| format!("could not flush the folder {}", dir.display()))?;
+    }
+    Ok(())
 }
 
 impl Drop for Staged {

@@ -127,7 +127,13 @@ pub fn prepare(opts: &RunOptions) -> anyhow::Result<Prepared> {
     let outputs = output_paths(opts)?;
     refuse_outputs_on_inputs(opts, &outputs.all())?;
     if !opts.overwrite {
-        if let Some(existing) = outputs.all().iter().find(|p| p.exists()) {
+        // Files of a set whose publishing a crash cut off are no complete output: replaced.
+        let interrupted = atomic::interrupted_set(&outputs.marker);
+        if let Some(existing) = outputs
+            .all()
+            .iter()
+            .find(|p| p.exists() && !interrupted.contains(p))
+        {
             return Err(OptionError::new(
                 OptionKey::Overwrite,
                 format!(
@@ -328,9 +334,19 @@ pub fn finish(job: &Prepared, swept: Swept, observer: &dyn Observer) -> anyhow::
         )
     })?;
     let stem = output_stem(opts)?;
-    // Every output is staged under a temporary name and all are renamed together at the end:
-    // an error leaves nothing behind and never mixes old and new outputs.
-    let mut staged = atomic::Staged::default();
+    // What a publish cut off by a crash left (outputs, temporary files, the marker) goes first.
+    let cleared = atomic::clear_interrupted(&job.outputs.marker)?;
+    if !cleared.is_empty() {
+        tracing::warn!(
+            "{} files of an earlier run whose publishing was cut off were removed from {}",
+            cleared.len(),
+            opts.out_dir.display()
+        );
+    }
+    // Every output is staged under a temporary name and all are renamed together at the end,
+    // under a marker: an error leaves nothing behind and never mixes old and new outputs, and a
+    // crash between renames leaves the marker for the next run.
+    let mut staged = atomic::Staged::with_marker(job.outputs.marker.clone());
     let files = exr_depth::stage_all(&mut staged, &opts.out_dir, &stem, &images, &extra)?;
     debug_assert_eq!(files, job.outputs.depth);
     let secs = |a: Instant, b: Instant| (b - a).as_secs_f64();

@@ -51,6 +51,8 @@ pub(super) fn with_stem(stem: &str, suffix: &str) -> String {
 pub const MESH_SUFFIX: &str = "swept.glb";
 pub const START_MESH_SUFFIX: &str = "start.glb";
 pub const REPORT_SUFFIX: &str = "report.json";
+/// The hidden marker of a set being published (`.<stem>.incomplete`).
+pub const INCOMPLETE_SUFFIX: &str = "incomplete";
 
 /// The extra formats asked for, each once, in `MeshFormat::ALL` order.
 fn also_formats(opts: &RunOptions) -> impl Iterator<Item = MeshFormat> + '_ {
@@ -70,6 +72,9 @@ pub struct OutputPaths {
     pub start_mesh: Option<PathBuf>,
     /// The `also` formats, in `MeshFormat::ALL` order.
     pub also: Vec<(MeshFormat, PathBuf)>,
+    /// `.<stem>.incomplete`: present while the set is being published, listing its files
+    /// (`io::atomic::Staged`); one left behind marks a set a crash cut off.
+    pub marker: PathBuf,
 }
 
 impl OutputPaths {
@@ -100,6 +105,9 @@ pub fn output_paths(opts: &RunOptions) -> anyhow::Result<OutputPaths> {
         report: at(REPORT_SUFFIX),
         start_mesh: opts.keep_start_mesh.then(|| at(START_MESH_SUFFIX)),
         also: also_formats(opts).map(|f| (f, at(f.suffix()))).collect(),
+        marker: opts
+            .out_dir
+            .join(format!(".{}", with_stem(&stem, INCOMPLETE_SUFFIX))),
     })
 }
 
