@@ -903,3 +903,30 @@ fn a_lock_planted_as_a_link_writes_nothing_outside() {
     assert!(!target.exists(), "the daemon created {}", target.display());
     assert_eq!(fs::read_dir(&outside).unwrap().count(), 0);
 }
+
+/// Issue 30, defect 3: a job folder removed while its job ran kept the daemon sweeping (with an
+/// error per status write), then was made again and filled with outputs and "done". Now the
+/// job is abandoned at the next check, nothing is written, and the folder stays gone.
+#[test]
+fn a_job_folder_removed_while_it_runs_is_abandoned_and_not_recreated() {
+    let (_tmp, dir) = watched();
+    let (job, _, mut d) = daemon_on_a_sweeping_job(&dir, 4);
+    fs::remove_dir_all(&job).unwrap();
+    let t0 = Instant::now();
+    wait_until(Duration::from_secs(20), "the job abandoned", || {
+        d.log().contains("abandoned")
+    });
+    assert!(
+        t0.elapsed() < Duration::from_secs(4),
+        "abandoning took {:?}",
+        t0.elapsed()
+    );
+    // Two rescans later the folder is still gone and nothing failed.
+    std::thread::sleep(Duration::from_millis(2500));
+    assert!(!job.exists(), "the job folder was made again:\n{}", d.log());
+    let log = d.log();
+    assert!(!log.contains("could not write the job status"), "{log}");
+    assert!(!log.contains("failed"), "{log}");
+    d.signal(libc::SIGTERM);
+    assert!(d.wait(Duration::from_secs(20)).success());
+}

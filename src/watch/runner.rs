@@ -77,6 +77,14 @@ pub fn run(ctx: &Context, job: &QueuedJob) -> State {
             JobId::Folder(_) => None,
         },
         inputs_changed: AtomicBool::new(false),
+        folder: match &job.id {
+            JobId::Folder(name) => {
+                let dir = ctx.root.join(name);
+                identity(&dir).map(|id| (dir, id))
+            }
+            JobId::Drop(_) => None,
+        },
+        vanished: AtomicBool::new(false),
     };
     let outcome = catch_unwind(AssertUnwindSafe(|| {
         if observer.cancelled() {
@@ -99,6 +107,14 @@ pub fn run(ctx: &Context, job: &QueuedJob) -> State {
             (State::Done, message, None)
         }
         Ok(Err(e)) if e.downcast_ref::<Cancelled>().is_some() => {
+            if observer.vanished.load(Ordering::Relaxed) {
+                // Nothing to record it in: writing the status would need the folder back.
+                tracing::info!(
+                    "{}: abandoned: the job folder was removed while the job ran; nothing was written",
+                    job.id
+                );
+                return State::Cancelled;
+            }
             if observer.inputs_changed.load(Ordering::Relaxed) {
                 let m = "the inputs changed while the job ran (still being written?); nothing was published, and the job runs again once they have settled";
                 (State::Queued, m.to_string(), None)
@@ -414,6 +430,11 @@ struct JobObserver<'a> {
     drop_inputs: Option<(&'a Path, &'a Fingerprint)>,
     /// Set when `drop_inputs` changed: the job is requeued, not failed or cancelled.
     inputs_changed: AtomicBool,
+    /// A job folder and its (device, inode) when the job started: once it is gone (or another
+    /// folder took its name) the job is abandoned and nothing is written or re-created there.
+    folder: Option<(PathBuf, (u64, u64))>,
+    /// Set when `folder` vanished.
+    vanished: AtomicBool,
 }
 
 fn stage_start(stage: &str) -> f64 {
@@ -423,7 +444,28 @@ fn stage_start(stage: &str) -> f64 {
         .map_or(0.0, |(_, p, _)| *p)
 }
 
+/// (device, inode) of what `path` names, not following a link.
+fn identity(path: &Path) -> Option<(u64, u64)> {
+    use std::os::unix::fs::MetadataExt;
+    fs::symlink_metadata(path)
+        .ok()
+        .filter(|m| m.is_dir())
+        .map(|m| (m.dev(), m.ino()))
+}
+
 impl JobObserver<'_> {
+    /// Whether the job's folder is gone or replaced since the job started.
+    fn folder_gone(&self) -> bool {
+        let Some((dir, was)) = &self.folder else {
+            return false;
+        };
+        let gone = identity(dir) != Some(*was);
+        if gone {
+            self.vanished.store(true, Ordering::Relaxed);
+        }
+        gone
+    }
+
     /// Whether a drop's inputs differ from the fingerprint it was started with (two stats).
     fn drop_changed(&self) -> bool {
         let Some((root, inputs)) = self.drop_inputs else {
@@ -462,6 +504,7 @@ impl Observer for JobObserver<'_> {
     /// nothing is published.
     fn cancelled(&self) -> bool {
         self.shutdown.load(Ordering::Relaxed)
+            || self.folder_gone()
             || self.cancel.as_deref().is_some_and(exists)
             || self.drop_changed()
     }

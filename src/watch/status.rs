@@ -57,6 +57,11 @@ impl StatusFile {
             status.timings.seconds = Some(end - started);
         }
         *last = Some(Instant::now());
+        // A job folder removed while its job runs: nothing to write to (the runner abandons
+        // the job); the folder is never made again for a status.
+        if self.path.parent().is_some_and(|d| !d.is_dir()) {
+            return;
+        }
         let write = serde_json::to_vec_pretty(status)
             .map_err(anyhow::Error::from)
             .and_then(|bytes| atomic::write_atomic(&self.path, &bytes));
