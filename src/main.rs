@@ -204,7 +204,7 @@ struct WatchArgs {
     )]
     rescan: f64,
     /// Jobs run at once (CPU backend only; a GPU runs one job at a time).
-    #[arg(long, value_name = "N", default_value_t = 1)]
+    #[arg(long, value_name = "N", default_value_t = 1, value_parser = at_least_one)]
     jobs: usize,
     /// Where sweeps run; the GPU device is acquired once and reused by every job.
     #[arg(long, value_enum, default_value_t = BackendArg::Auto)]
@@ -307,8 +307,12 @@ struct RunArgs {
     #[arg(long, value_enum, default_value_t = BackendArg::Auto)]
     backend: BackendArg,
     /// Output file stem [default: the trajectory's file stem].
-    #[arg(long)]
+    #[arg(long, value_parser = file_stem)]
     name: Option<String>,
+    /// Bare output names (swept.glb, report.json), as in a watched job folder: how a watched
+    /// job's shards are swept on a cluster.
+    #[arg(long, hide = true, conflicts_with = "name")]
+    bare_names: bool,
     /// Stop simplifying at this many triangles (the error bound always wins) [default: as far as
     /// the bound allows].
     #[arg(long, value_name = "N")]
@@ -414,7 +418,7 @@ struct MeshArgs {
     #[arg(long, value_name = "DIR")]
     out: PathBuf,
     /// Output file stem [default: the job's --name, else the trajectory's file stem].
-    #[arg(long)]
+    #[arg(long, value_parser = file_stem)]
     name: Option<String>,
     /// Replace existing outputs.
     #[arg(long)]
@@ -447,7 +451,11 @@ fn run_options(args: &RunArgs) -> RunOptions {
         generator: args.generator.clone(),
         trajectory: args.trajectory.clone(),
         out_dir: args.out.clone(),
-        name: args.name.clone(),
+        name: if args.bare_names {
+            Some(String::new())
+        } else {
+            args.name.clone()
+        },
         accuracy: Accuracy::choose(args.resolution, args.tolerance, Accuracy::DEFAULT),
         overrides: Overrides {
             delta: args.delta,
@@ -596,6 +604,14 @@ fn cluster(command: ClusterCommand) -> anyhow::Result<()> {
             Ok(())
         }
         ClusterCommand::Status(args) => {
+            if !args.dir.is_dir() {
+                return Err(sweptvol::error::InputError::new(
+                    &args.dir,
+                    "is not a folder",
+                    "give the shard folder a cluster submit wrote (its --shard-dir)",
+                )
+                .into());
+            }
             let st = cluster::status(&args.dir, true)?;
             if args.json {
                 say(format_args!("{}\n", serde_json::to_string_pretty(&st)?))?;
@@ -752,6 +768,23 @@ fn main() -> ExitCode {
             }
         }
     }
+}
+
+/// A count of at least one.
+fn at_least_one(s: &str) -> Result<usize, String> {
+    match s.parse::<usize>() {
+        Ok(0) => Err("must be at least 1".into()),
+        Ok(n) => Ok(n),
+        Err(e) => Err(e.to_string()),
+    }
+}
+
+/// An output file stem: a name, not empty and not a path.
+fn file_stem(s: &str) -> Result<String, String> {
+    if s.is_empty() || s == "." || s == ".." || s.contains('/') || s.contains('\0') {
+        return Err("must be a file name stem such as part (not empty, no folder)".into());
+    }
+    Ok(s.to_string())
 }
 
 /// Write `text` to stdout. A reader that went away (a closed pipe: `| head`) ends the output

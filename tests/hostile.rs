@@ -639,3 +639,43 @@ fn an_output_that_is_a_folder_stops_the_run_before_anything_is_published() {
     assert!(tmp.is_empty() && marker.is_empty(), "{tmp:?} {marker:?}");
     assert!(out.join("bunny-vibration.report.json/inside").is_dir());
 }
+
+/// Issue 30, weak spots: an empty or path-like --name, `watch --jobs 0` and `cluster status`
+/// on a folder that does not exist were accepted (the last with exit 0); each is now refused
+/// with exit 2, saying what is wrong.
+#[test]
+fn empty_names_zero_jobs_and_missing_shard_folders_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    for name in ["", "a/b", ".."] {
+        let mut args = run_args(
+            Path::new("examples/bunny.glb"),
+            Path::new("examples/bunny-vibration.csv"),
+            &out,
+            &["--resolution", "16"],
+        );
+        args.extend(["--name".to_string(), name.to_string()]);
+        let o = sweptvol(&args);
+        assert_eq!(o.status.code(), Some(2), "--name {name:?}: {}", stderr(&o));
+        assert!(stderr(&o).contains("file name stem"), "{}", stderr(&o));
+        assert!(!out.exists(), "--name {name:?} wrote {}", out.display());
+    }
+    let o = sweptvol(&[
+        "watch",
+        dir.path().to_str().unwrap(),
+        "--jobs",
+        "0",
+        "--once",
+    ]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("at least 1"), "{}", stderr(&o));
+
+    let missing = dir.path().join("no-such-shards");
+    let o = sweptvol(&["cluster", "status", missing.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("no-such-shards") && stderr(&o).contains("not a folder"),
+        "{}",
+        stderr(&o)
+    );
+}

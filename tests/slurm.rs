@@ -65,12 +65,12 @@ fn job_args(out: &Path) -> Vec<String> {
 /// `run`'s outputs of the example, named `<name>.swept.glb`, ... (bare names for "").
 fn run_outputs(dir: &Path, name: &str) -> PathBuf {
     let out = dir.join("run");
-    let mut args = vec![
-        "run".to_string(),
-        "--quiet".into(),
-        "--name".into(),
-        name.into(),
-    ];
+    let mut args = vec!["run".to_string(), "--quiet".into()];
+    if name.is_empty() {
+        args.push("--bare-names".into()); // as a watched job's shards are swept
+    } else {
+        args.extend(["--name".into(), name.into()]);
+    }
     args.extend(job_args(&out));
     let o = sweptvol(&args);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));

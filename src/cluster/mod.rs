@@ -99,8 +99,10 @@ pub fn sweep_args(opts: &RunOptions) -> anyhow::Result<Vec<String>> {
     a.extend(["--radii".into(), opts.overrides.radii.name().into()]);
     a.extend(["--motion".into(), opts.motion.name().into()]);
     a.extend(["--classify".into(), opts.classify.name().into()]);
-    if let Some(name) = &opts.name {
-        a.extend(["--name".into(), name.clone()]);
+    match opts.name.as_deref() {
+        Some("") => a.push("--bare-names".into()),
+        Some(name) => a.extend(["--name".into(), name.into()]),
+        None => {}
     }
     if opts.target_triangles > 0 {
         a.extend([
@@ -198,8 +200,9 @@ pub fn submit_prepared(o: &SubmitOptions, job: &pipeline::Prepared) -> anyhow::R
         dir.to_string_lossy().into_owned(),
     ];
     mesh.extend(["--out".into(), out_dir.to_string_lossy().into_owned()]);
-    if let Some(name) = &o.run.name {
-        mesh.extend(["--name".into(), name.clone()]);
+    // The merge takes the name the shards were swept with (bare names included).
+    if let Some(name) = o.run.name.as_deref().filter(|n| !n.is_empty()) {
+        mesh.extend(["--name".into(), name.into()]);
     }
     if o.run.overwrite {
         mesh.push("--overwrite".into());

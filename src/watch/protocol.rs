@@ -373,6 +373,18 @@ pub const JOB_KEY_LIST: [&str; 12] = [
 
 /// Parse `job.json` bytes; `path` names the file in errors (with serde_json's line and column).
 pub fn parse_job_options(path: &Path, bytes: &[u8]) -> Result<JobOptions, InputError> {
+    // serde would take a JSON array for the struct too, by position: refused by name.
+    let first = bytes.iter().find(|b| !b.is_ascii_whitespace());
+    if first.is_some_and(|&b| b != b'{') {
+        return Err(InputError::new(
+            path,
+            "the job options are not a JSON object",
+            format!(
+                "write one JSON object, {{\"resolution\": 256}} for instance, using only the keys {}",
+                JOB_KEY_LIST.join(", ")
+            ),
+        ));
+    }
     let opts: JobOptions = serde_json::from_slice(bytes).map_err(|e| {
         InputError::new(
             path,
@@ -432,6 +444,19 @@ impl JobOptions {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Issue 30: a job.json that is a JSON array was taken position by position (and `[1,2,3]`
+    /// named internal types); anything but an object is refused by name.
+    #[test]
+    fn job_options_must_be_an_object() {
+        let path = Path::new("job/job.json");
+        for bytes in [&b"[256]"[..], b"  [1, 2, 3]", b"256", b"\"x\""] {
+            let e = parse_job_options(path, bytes).unwrap_err().to_string();
+            assert!(e.contains("not a JSON object"), "{e}");
+            assert!(!e.contains("struct"), "{e}");
+        }
+        assert!(parse_job_options(path, br#" {"resolution": 64}"#).is_ok());
+    }
 
     #[test]
     fn output_names_are_never_inputs() {
