@@ -930,3 +930,42 @@ fn a_job_folder_removed_while_it_runs_is_abandoned_and_not_recreated() {
     d.signal(libc::SIGTERM);
     assert!(d.wait(Duration::from_secs(20)).success());
 }
+
+/// Issue 30, weak spot: a job folder's inputs rewritten while its job ran were not watched
+/// (only drops were), so the result of the old trajectory was published as the new one's.
+/// Now the run stops, publishes nothing, and the job runs again on the inputs as they are.
+#[test]
+fn a_job_folders_inputs_changed_during_its_run_publish_nothing_and_run_again() {
+    let (_tmp, dir) = watched();
+    let (job, _, mut d) = daemon_on_a_sweeping_job(&dir, 4);
+    let status_path = job.join("status.json");
+    let (_, short) = long_job_files(1);
+    let rows = short
+        .lines()
+        .filter(|l| !l.starts_with('#') && !l.starts_with("frame"))
+        .count();
+    fs::write(job.join("trajectory.csv"), &short).unwrap();
+    let mut requeued = false;
+    wait_until(
+        Duration::from_secs(120),
+        "the rewritten job to finish",
+        || {
+            let s = status(&status_path);
+            let st = s.as_ref().and_then(|s| s["state"].as_str()).unwrap_or("");
+            if st == "queued" {
+                let m = s.as_ref().unwrap()["message"].as_str().unwrap_or("");
+                requeued |= m.contains("inputs changed");
+            }
+            st == "done"
+        },
+    );
+    assert!(requeued, "the first run was not requeued:\n{}", d.log());
+    let r: Value = serde_json::from_slice(&fs::read(job.join("report.json")).unwrap()).unwrap();
+    assert_eq!(
+        r["motion"]["intervals"],
+        rows - 1,
+        "the old trajectory's result was published"
+    );
+    d.signal(libc::SIGTERM);
+    assert!(d.wait(Duration::from_secs(20)).success());
+}

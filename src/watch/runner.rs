@@ -72,9 +72,9 @@ pub fn run(ctx: &Context, job: &QueuedJob) -> State {
         status,
         cancel: job.id.cancel_path(ctx.root),
         shutdown: ctx.shutdown,
-        drop_inputs: match &job.id {
-            JobId::Drop(_) => Some((ctx.root, &job.inputs)),
-            JobId::Folder(_) => None,
+        inputs: match &job.id {
+            JobId::Drop(_) => Some((ctx.root.to_path_buf(), &job.inputs, true)),
+            JobId::Folder(name) => Some((ctx.root.join(name), &job.inputs, false)),
         },
         inputs_changed: AtomicBool::new(false),
         folder: match &job.id {
@@ -427,8 +427,10 @@ struct JobObserver<'a> {
     shutdown: &'a AtomicBool,
     /// A drop's folder and the inputs it was started with: a writer slower than --settle may
     /// still be appending, so a change (size or mtime) stops the job before it publishes.
-    drop_inputs: Option<(&'a Path, &'a Fingerprint)>,
-    /// Set when `drop_inputs` changed: the job is requeued, not failed or cancelled.
+    /// The folder the inputs' names are relative to, their stamps, and whether a stamp follows a
+    /// link (drops: as `scan` stamps them; a job folder's links are stamped as links).
+    inputs: Option<(PathBuf, &'a Fingerprint, bool)>,
+    /// Set when `inputs` changed: the job is requeued, not failed or cancelled.
     inputs_changed: AtomicBool,
     /// A job folder and its (device, inode) when the job started: once it is gone (or another
     /// folder took its name) the job is abandoned and nothing is written or re-created there.
@@ -467,16 +469,21 @@ impl JobObserver<'_> {
     }
 
     /// Whether a drop's inputs differ from the fingerprint it was started with (two stats).
-    fn drop_changed(&self) -> bool {
-        let Some((root, inputs)) = self.drop_inputs else {
+    fn inputs_changed(&self) -> bool {
+        let Some((root, inputs, follow)) = &self.inputs else {
             return false;
         };
-        let changed = inputs
-            .iter()
-            .any(|f| match fs::metadata(root.join(&f.file)) {
-                Ok(m) => m.len() != f.size || super::scan::mtime_ns(&m) != f.mtime_ns,
-                Err(_) => true,
-            });
+        let stat = |p: &Path| {
+            if *follow {
+                fs::metadata(p)
+            } else {
+                fs::symlink_metadata(p)
+            }
+        };
+        let changed = inputs.iter().any(|f| match stat(&root.join(&f.file)) {
+            Ok(m) => m.len() != f.size || super::scan::mtime_ns(&m) != f.mtime_ns,
+            Err(_) => true,
+        });
         if changed {
             self.inputs_changed.store(true, Ordering::Relaxed);
         }
@@ -506,6 +513,6 @@ impl Observer for JobObserver<'_> {
         self.shutdown.load(Ordering::Relaxed)
             || self.folder_gone()
             || self.cancel.as_deref().is_some_and(exists)
-            || self.drop_changed()
+            || self.inputs_changed()
     }
 }
