@@ -17,7 +17,7 @@ use sweptvol::input::grid::{Accuracy, Overrides, Radii};
 use sweptvol::input::motion::Motion;
 use sweptvol::io::mesh_formats::MeshFormat;
 use sweptvol::mesh::classify::Method;
-use sweptvol::pipeline::shard::{self, ShardId};
+use sweptvol::pipeline::shard::{self, ShardId, MAX_SHARDS};
 use sweptvol::pipeline::{self, RunOptions};
 use sweptvol::sweep::backend::{Backend, BackendChoice};
 use sweptvol::sweep::Observer;
@@ -221,7 +221,7 @@ struct WatchArgs {
     #[arg(long, value_enum, default_value = "local")]
     executor: ExecutorArg,
     /// With --executor slurm: shards per job.
-    #[arg(long, value_name = "N", default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=9999))]
+    #[arg(long, value_name = "N", default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=MAX_SHARDS as i64))]
     shards: u32,
     /// With --executor slurm: an sbatch option for every job, as one argument; repeatable.
     #[arg(long, value_name = "OPTION", allow_hyphen_values = true)]
@@ -374,7 +374,7 @@ enum ClusterCommand {
 #[derive(Args)]
 struct SubmitArgs {
     /// Shards to split the job into (array tasks 1..N).
-    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..=9999))]
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..=MAX_SHARDS as i64))]
     shards: u32,
     /// Where the shards, scripts and logs go [default: OUT/NAME.shards].
     #[arg(long, value_name = "DIR")]

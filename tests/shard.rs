@@ -292,6 +292,20 @@ fn bad_shard_sets_are_refused() {
     let merged = d.join("merged");
     ok(&mesh_args(&[&shards, &copy], &merged));
     assert!(merged.join("part.swept.glb").exists());
+    // Issue 30: a corrupt copy was ignored with its folder second and refused with it first.
+    // Now it is refused in either order, by its name, with the intact copy left as it is.
+    let good = fs::read(copy.join("shard-0001-of-0004.bin")).unwrap();
+    let mut bad = good.clone();
+    bad[100] ^= 1;
+    fs::write(copy.join("shard-0001-of-0004.bin"), &bad).unwrap();
+    for order in [[shards.as_path(), &copy], [&copy, &shards]] {
+        let err = refused(&mesh_args(&order, &out), &out);
+        assert!(
+            err.contains("copy/shard-0001-of-0004.bin") && err.contains("hash"),
+            "{order:?}: {err}"
+        );
+    }
+    fs::write(copy.join("shard-0001-of-0004.bin"), &good).unwrap();
 
     // Truncated data, and data of the right length that does not match its hash.
     let bin = fs::read(shard(2, "bin")).unwrap();
@@ -327,6 +341,18 @@ fn bad_shard_sets_are_refused() {
         "{err}"
     );
     write(d, "part.csv", rows);
+    // Issue 30: a count beyond the manifests' names is refused as `cluster submit` refuses it,
+    // and the shards missing from a large split are summed up, not listed one by one.
+    let o = sweptvol(&sweep_args(&g, &t, &d.join("big"), "1/99999", &[]));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains("9999"), "{err}");
+    let big = d.join("big");
+    ok(&sweep_args(&g, &t, &big, "1/9999", &[]));
+    ok(&sweep_args(&g, &t, &big, "5/9999", &[]));
+    let err = refused(&mesh_args(&[&big], &out), &out);
+    assert!(err.contains("9997 shards of 9999: 2-4, 6-9999"), "{err}");
+    assert!(err.len() < 1000, "{} bytes: {err}", err.len());
     // No shards at all.
     let empty = d.join("empty");
     fs::create_dir(&empty).unwrap();

@@ -422,10 +422,7 @@ pub fn describe(st: &ClusterStatus) -> String {
     out
 }
 
-/// Shard indices as "1, 2, 5".
+/// Shard indices as ranges: "1-3, 5" (`shard::index_ranges`).
 pub fn list(v: &[u32]) -> String {
-    v.iter()
-        .map(|i| i.to_string())
-        .collect::<Vec<_>>()
-        .join(", ")
+    crate::pipeline::shard::index_ranges(v)
 }

@@ -40,6 +40,10 @@ const VERSION: u32 = 1;
 /// First bytes of a shard's data file.
 const MAGIC: &[u8; 8] = b"SVSHARD1";
 
+/// Most shards one job may have: the manifests' names (`shard-IIII-of-NNNN`) sort by index
+/// below 10,000, and `cluster submit --shards` takes the same range.
+pub const MAX_SHARDS: u32 = 9999;
+
 /// Shard `index` (1-based) of `count`: `--shard 3/8`, SLURM's `$SLURM_ARRAY_TASK_ID/8` with
 /// `--array=1-8`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -51,13 +55,13 @@ pub struct ShardId {
 impl FromStr for ShardId {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
-        let bad = || format!("{s:?}: write I/N with 1 <= I <= N, such as 3/8");
+        let bad = || format!("{s:?}: write I/N with 1 <= I <= N <= {MAX_SHARDS}, such as 3/8");
         let (i, n) = s.split_once('/').ok_or_else(bad)?;
         let (index, count) = (
             i.trim().parse::<u32>().map_err(|_| bad())?,
             n.trim().parse::<u32>().map_err(|_| bad())?,
         );
-        if index == 0 || index > count {
+        if index == 0 || index > count || count > MAX_SHARDS {
             return Err(bad());
         }
         Ok(ShardId { index, count })
@@ -480,6 +484,18 @@ pub fn merge(
         }
         seconds += m.sweep_seconds;
     }
+    for (path, m) in &set.copies {
+        check_data(path, m).map_err(|e| match e.downcast::<InputError>() {
+            Ok(mut e) => {
+                e.fix = format!(
+                    "remove this copy of shard {} (another folder holds it whole), or sweep it again",
+                    m.shard.index
+                );
+                e.into()
+            }
+            Err(e) => e,
+        })?;
+    }
     let images = DepthImages::from_encoded(input.grid, encoded);
     let swept = Swept {
         images,
@@ -495,6 +511,9 @@ pub struct ShardSet {
     pub count: u32,
     /// (manifest path, manifest) in index order.
     pub shards: Vec<(PathBuf, Manifest)>,
+    /// Further copies of those shards (the same data hash), in name order: their data is
+    /// checked too, so a corrupt copy is found whichever folder comes first.
+    pub copies: Vec<(PathBuf, Manifest)>,
 }
 
 impl ShardSet {
@@ -509,15 +528,21 @@ impl ShardSet {
             .into());
         }
         if !progress.missing.is_empty() {
-            let list: Vec<String> = progress.missing.iter().map(|i| i.to_string()).collect();
             let (p, m) = &progress.done[0];
+            let n = progress.missing.len();
             return Err(InputError::new(
                 p.parent().unwrap_or(p),
                 format!(
-                    "shard{} {} of {} missing (no shard-IIII-of-{:04}.json in {})",
-                    if list.len() > 1 { "s" } else { "" },
-                    list.join(", "),
-                    m.shard.count,
+                    "{} missing (no shard-IIII-of-{:04}.json in {})",
+                    if n == 1 {
+                        format!("shard {} of {}", progress.missing[0], m.shard.count)
+                    } else {
+                        format!(
+                            "{n} shards of {}: {}",
+                            m.shard.count,
+                            index_ranges(&progress.missing)
+                        )
+                    },
                     m.shard.count,
                     dirs.iter().map(|d| d.display().to_string()).collect::<Vec<_>>().join(", ")
                 ),
@@ -531,9 +556,44 @@ impl ShardSet {
         Ok(ShardSet {
             count: progress.done[0].1.shard.count,
             shards: progress.done,
+            copies: progress.copies,
         })
     }
 }
+
+/// Shard indices (ascending) as ranges, `1-5, 7, 9-12`, at most [`LISTED_RANGES`] of them
+/// and then how many indices the rest hold: a message stays a line at any shard count.
+pub fn index_ranges(indices: &[u32]) -> String {
+    let mut ranges: Vec<(u32, u32)> = Vec::new();
+    for &i in indices {
+        match ranges.last_mut() {
+            Some((_, hi)) if *hi + 1 == i => *hi = i,
+            _ => ranges.push((i, i)),
+        }
+    }
+    let shown: Vec<String> = ranges
+        .iter()
+        .take(LISTED_RANGES)
+        .map(|&(lo, hi)| match hi - lo {
+            0 => lo.to_string(),
+            1 => format!("{lo}, {hi}"),
+            _ => format!("{lo}-{hi}"),
+        })
+        .collect();
+    let rest: u32 = ranges
+        .iter()
+        .skip(LISTED_RANGES)
+        .map(|(lo, hi)| hi - lo + 1)
+        .sum();
+    let mut out = shown.join(", ");
+    if rest > 0 {
+        out += &format!(" and {rest} more");
+    }
+    out
+}
+
+/// Ranges [`index_ranges`] spells out before it counts the rest.
+const LISTED_RANGES: usize = 12;
 
 /// What the manifests in some folders say of one job: which shards are done, which missing,
 /// and any manifest that belongs elsewhere.
@@ -542,6 +602,8 @@ pub struct ShardProgress {
     pub done: Vec<(PathBuf, Manifest)>,
     /// Indices (1-based) with no manifest.
     pub missing: Vec<u32>,
+    /// Manifests of shards already in `done` with the same data hash.
+    pub copies: Vec<(PathBuf, Manifest)>,
     /// Manifests of another job or shard set, or unreadable, and why.
     pub foreign: Vec<(PathBuf, String)>,
 }
@@ -588,10 +650,11 @@ impl ShardProgress {
             return Err(InputError::new(p, why.clone(), "sweep the shards again").into());
         };
         let mut done: Vec<(PathBuf, Manifest)> = Vec::new();
+        let mut copies = Vec::new();
         for (p, m) in read {
             match fit(&job, count, &m, &done) {
                 Fit::Done => done.push((p, m)),
-                Fit::Copy => {}
+                Fit::Copy => copies.push((p, m)),
                 Fit::Foreign(why) => foreign.push((p, why)),
             }
         }
@@ -602,6 +665,7 @@ impl ShardProgress {
         Ok(ShardProgress {
             done,
             missing,
+            copies,
             foreign,
         })
     }
