@@ -192,19 +192,124 @@ fn posed_bounds(
         )
 }
 
+/// The pose putting a part farthest from the world origin: (part, its CSV line, the largest
+/// |world coordinate| of its posed vertices); a reach that is not a number counts as infinite.
+fn farthest_pose(
+    generator: &Generator,
+    assigned: &[(usize, Vec<LinedPose>, bool)],
+) -> (usize, Option<u64>, f64) {
+    assigned
+        .iter()
+        .flat_map(|(i, poses, _)| poses.iter().map(move |(m, line)| (*i, m, *line)))
+        .map(|(i, m, line)| {
+            let (a, b) = pose_box(generator, i, m);
+            let reach = a.abs().max(b.abs()).max_element();
+            (i, line, if reach.is_nan() { f64::INFINITY } else { reach })
+        })
+        .fold((0, None, f64::NEG_INFINITY), |best, c| {
+            if c.2 > best.2 {
+                c
+            } else {
+                best
+            }
+        })
+}
+
+/// An error about posed coordinates, blamed on the farthest pose: its CSV line (the message
+/// then names the node), or the glTF node of a part no row moves or whose own placement
+/// already reaches half as far. `what` gives, from the pose's reach, the message and the fix.
+fn blame_farthest(
+    generator: &Generator,
+    gltf_path: &Path,
+    csv_path: &Path,
+    assigned: &[(usize, Vec<LinedPose>, bool)],
+    what: impl FnOnce(f64) -> (String, &'static str),
+) -> InputError {
+    let (index, line, reach) = farthest_pose(generator, assigned);
+    let part = &generator.parts[index];
+    let (a, b) = pose_box(generator, index, &part.world);
+    let line = line.filter(|_| a.abs().max(b.abs()).max_element() < reach / 2.0);
+    let node = match &part.node_name {
+        Some(name) => format!("nodes[{}] ({name:?})", part.node_index),
+        None => format!("nodes[{}]", part.node_index),
+    };
+    let (message, fix) = what(reach);
+    match line {
+        Some(line) => {
+            InputError::new(csv_path, format!("{message} (node {node})"), fix).at_line(line)
+        }
+        None => InputError::new(gltf_path, message, fix).in_column(node),
+    }
+}
+
+const FIX_FAR: &str =
+    "move the part nearer the world origin (subtract a common offset from the translations), or use a coarser grid (--tolerance)";
+
+/// Refuse, before any grid is fitted, posed coordinates that f32 outputs cannot hold or that
+/// no grid fitted by resolution could tell apart (the box's extent at or below f32's rounding
+/// of its distance from the origin: the part, far out, would be one point): blamed on the
+/// pose's CSV line or the glTF node, never reported as a box without a place.
+fn check_posed_range(
+    generator: &Generator,
+    gltf_path: &Path,
+    csv_path: &Path,
+    assigned: &[(usize, Vec<LinedPose>, bool)],
+    (lo, hi): (DVec3, DVec3),
+    accuracy: Accuracy,
+    overrides: Overrides,
+) -> Result<(), InputError> {
+    let x = lo.abs().max(hi.abs()).max_element();
+    let extent = (hi - lo).max_element();
+    let blame = |message: &dyn Fn(f64) -> String| {
+        Err(blame_farthest(
+            generator,
+            gltf_path,
+            csv_path,
+            assigned,
+            |reach| (message(reach), FIX_FAR),
+        ))
+    };
+    if !(x.is_finite() && extent.is_finite()) || x > MAX_WORLD_COORDINATE {
+        return blame(&|reach| {
+            format!(
+                "f32 cannot hold the result: posed coordinates reach {} world units, beyond the {} that f32 outputs can hold",
+                num(reach),
+                num(MAX_WORLD_COORDINATE)
+            )
+        });
+    }
+    // With --resolution the voxel is a share of the extent (with no fixed --delta), and
+    // check_world_range needs u·x <= 1% of it: an extent within u·x fails that at every
+    // resolution; a zero extent leaves --resolution nothing to divide.
+    let unresolved = extent == 0.0 || (overrides.delta.is_none() && extent <= U32 * x);
+    if matches!(accuracy, Accuracy::Resolution(_)) && x > 0.0 && unresolved {
+        return blame(&|reach| {
+            format!(
+                "f32 cannot hold the result: posed coordinates reach {} world units while all the posed geometry spans {}: that far out, f32 cannot tell its points apart",
+                num(reach),
+                num(extent)
+            )
+        });
+    }
+    Ok(())
+}
+
 /// Refuse, before the sweep, a grid whose world coordinates f32 cannot hold to a small part of
 /// a voxel. The mesh lies in the grid box, so writing a vertex as f32 moves it by at most
 /// u·X + 2⁻¹⁵⁰ (u = 2⁻²⁴, X the box's largest |world coordinate|, 2⁻¹⁵⁰ below the normal
 /// range); that must stay under MAX_OUTPUT_ROUNDING_VOXELS·h, the limit `pipeline` checks on
-/// the real mesh. The error names the pose putting the part farthest out: its CSV line, or the
-/// glTF node of a part no row moves.
+/// the real mesh. The posed coordinates passed [`check_posed_range`], so a box beyond f32's
+/// range was pushed there by the offset around them: blamed on `margin_key` ($delta, or the
+/// $tolerance δ follows). Otherwise the error names the pose putting the part farthest out.
 fn check_world_range(
     generator: &Generator,
     gltf_path: &Path,
     csv_path: &Path,
     assigned: &[(usize, Vec<LinedPose>, bool)],
     grid: &Grid,
-) -> Result<(), InputError> {
+    delta: f64,
+    margin_key: OptionKey,
+) -> anyhow::Result<()> {
     let lo = grid.origin();
     let hi = grid.to_world(DVec3::from_array(grid.dims.map(f64::from)));
     let x = lo.abs().max(hi.abs()).max_element();
@@ -213,54 +318,36 @@ fn check_world_range(
     if rounding <= limit && x <= MAX_WORLD_COORDINATE {
         return Ok(());
     }
-    // The offender: the pose whose posed vertices reach farthest from the origin.
-    let (part, line, reach) = assigned
-        .iter()
-        .flat_map(|(i, poses, _)| poses.iter().map(move |(m, line)| (*i, m, *line)))
-        .map(|(i, m, line)| {
-            let (a, b) = pose_box(generator, i, m);
-            (i, line, a.abs().max(b.abs()).max_element())
-        })
-        .fold((0, None, f64::NEG_INFINITY), |best, c| {
-            if c.2 > best.2 {
-                c
-            } else {
-                best
-            }
-        });
-    let index = part;
-    let part = &generator.parts[part];
-    // Blame the glTF when the node's own placement already reaches half as far as the pose.
-    let (a, b) = pose_box(generator, index, &part.world);
-    let line = line.filter(|_| a.abs().max(b.abs()).max_element() < reach / 2.0);
-    let node = match &part.node_name {
-        Some(name) => format!("nodes[{}] ({name:?})", part.node_index),
-        None => format!("nodes[{}]", part.node_index),
-    };
-    let message = if x > MAX_WORLD_COORDINATE {
-        format!(
-            "f32 cannot hold the result: posed coordinates reach {} world units (node {node}), beyond the {} that f32 outputs can hold",
-            num(reach),
-            num(MAX_WORLD_COORDINATE)
+    if x > MAX_WORLD_COORDINATE {
+        return Err(OptionError::new(
+            margin_key,
+            format!(
+                "the offset radius δ = {} puts the grid's box {} world units from the origin, beyond the {} that f32 outputs can hold; pick a smaller {}",
+                num(delta),
+                num(x),
+                num(MAX_WORLD_COORDINATE),
+                if margin_key == OptionKey::Delta { "$delta" } else { "$tolerance" }
+            ),
         )
-    } else {
-        format!(
-            "f32 cannot hold the result: posed coordinates reach {} world units (node {node}) while the voxel is {}; written as f32 the mesh could move by {}, more than {}% of a voxel",
+        .into());
+    }
+    let h = grid.h;
+    Err(blame_farthest(generator, gltf_path, csv_path, assigned, |reach| {
+        let message = format!(
+            "f32 cannot hold the result: posed coordinates reach {} world units while the voxel is {}; written as f32 the mesh could move by {}, more than {}% of a voxel",
             num(reach),
-            num(grid.h),
+            num(h),
             num(rounding),
             MAX_OUTPUT_ROUNDING_VOXELS * 100.0
-        )
-    };
-    let fix = if x > MAX_WORLD_COORDINATE || reach > 1e6 * grid.h {
-        "move the part nearer the world origin (subtract a common offset from the translations), or use a coarser grid (--tolerance)"
-    } else {
-        "scale the part up (use smaller units): its size is below f32 precision"
-    };
-    Err(match line {
-        Some(line) => InputError::new(csv_path, message, fix).at_line(line),
-        None => InputError::new(gltf_path, message, fix).in_column(node),
+        );
+        let fix = if reach > 1e6 * h {
+            FIX_FAR
+        } else {
+            "scale the part up (use smaller units): its size is below f32 precision"
+        };
+        (message, fix)
     })
+    .into())
 }
 
 /// Bound on the rounding of one posed triangle's depths, grid units.
@@ -304,11 +391,20 @@ pub fn build(
             .collect(),
         warnings: Vec::new(),
     };
+    let (mut lo, mut hi) = posed_bounds(&outlined, &assigned);
+    check_posed_range(
+        &outlined,
+        gltf_path,
+        csv_path,
+        &assigned,
+        (lo, hi),
+        accuracy,
+        overrides,
+    )?;
     let intervals = match motion {
         Motion::Screw => motion::intervals(&outlined, trajectory, csv_path, &assigned)?,
         Motion::Discrete => Vec::new(),
     };
-    let (mut lo, mut hi) = posed_bounds(&outlined, &assigned);
     // The grid holds every instant of the motion (the sweep would clip what lies outside).
     let motion_box = (!intervals.is_empty())
         .then(|| motion::motion_box(&outlined, &intervals, (hi - lo).max_element()));
@@ -320,7 +416,20 @@ pub fn build(
     let (grid, params) = fit_grid(lo, hi, accuracy, overrides, mu_voxels)?;
     // Rows too far out for f32 are refused by line first; a motion box that overflowed
     // otherwise would leave instants outside the grid: refused too, never clipped.
-    check_world_range(&outlined, gltf_path, csv_path, &assigned, &grid)?;
+    let margin_key = if overrides.delta.is_some() {
+        OptionKey::Delta
+    } else {
+        OptionKey::Tolerance
+    };
+    check_world_range(
+        &outlined,
+        gltf_path,
+        csv_path,
+        &assigned,
+        &grid,
+        params.delta,
+        margin_key,
+    )?;
     if motion_box.is_some_and(|m| !finite(m)) {
         anyhow::bail!("the continuous motion's bounding box overflows f64: move the part nearer the world origin, or pass --motion discrete");
     }

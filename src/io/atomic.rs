@@ -39,6 +39,32 @@ pub fn create_temp(path: &Path) -> std::io::Result<(fs::File, PathBuf)> {
     Err(last.expect("sixteen tries"))
 }
 
+/// Whether files can be made in `dir`, or where it does not exist yet in the nearest folder
+/// above it, found by making and removing a probe file (as permissions, a read-only
+/// filesystem or a file in the way would refuse an output). Returns why not.
+pub fn probe_writable(dir: &Path) -> Result<(), String> {
+    let mut at = dir;
+    while fs::symlink_metadata(at).is_err() {
+        match at.parent() {
+            Some(p) if !p.as_os_str().is_empty() => at = p,
+            _ => {
+                at = Path::new(".");
+                break;
+            }
+        }
+    }
+    if !fs::metadata(at).is_ok_and(|m| m.is_dir()) {
+        return Err(format!("{} is not a folder", at.display()));
+    }
+    match create_temp(&at.join(".sweptvol-probe")) {
+        Ok((_, tmp)) => {
+            let _ = fs::remove_file(tmp);
+            Ok(())
+        }
+        Err(e) => Err(format!("cannot create files in {}: {e}", at.display())),
+    }
+}
+
 /// Write `bytes` to `path` atomically: temporary file, flush, fsync, rename.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
     let (mut f, tmp) =
@@ -74,6 +100,9 @@ pub struct Staged {
     files: Vec<(PathBuf, PathBuf)>,
     /// Written before the first rename and removed after the last, listing the final names.
     marker: Option<PathBuf>,
+    /// Files of an earlier set this one replaces without a file of its own (an output no longer
+    /// asked for): removed after the renames, listed in the marker with them.
+    retired: Vec<PathBuf>,
 }
 
 /// Test hook: with `SWEPTVOL_TEST_ABORT_AFTER_RENAMES=k`, a commit aborts the process after its
@@ -145,7 +174,14 @@ impl Staged {
         Staged {
             files: Vec::new(),
             marker: Some(marker),
+            retired: Vec::new(),
         }
+    }
+
+    /// Remove `path`, if it is a file, once the set is in place: an earlier set's output that
+    /// this set does not write must not be read beside it.
+    pub fn retire(&mut self, path: &Path) {
+        self.retired.push(path.to_path_buf());
     }
 
     /// A fresh temporary file (see [`create_temp`]) to write `final_path`'s content to.
@@ -185,7 +221,9 @@ impl Staged {
             let list: String = self
                 .files
                 .iter()
-                .map(|(_, p)| format!("{}\n", p.display()))
+                .map(|(_, p)| p)
+                .chain(&self.retired)
+                .map(|p| format!("{}\n", p.display()))
                 .collect();
             write_atomic(marker, list.as_bytes())?;
         }
@@ -200,6 +238,12 @@ impl Staged {
             commit(&tmp, &path)?;
             self.files.remove(0);
             renamed += 1;
+        }
+        for path in &self.retired {
+            if fs::symlink_metadata(path).is_ok_and(|m| !m.is_dir()) {
+                fs::remove_file(path)
+                    .with_context(|| format!("could not remove {}", path.display()))?;
+            }
         }
         sync_dirs(&dirs)?;
         if let Some(marker) = &self.marker {

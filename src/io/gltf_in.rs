@@ -20,6 +20,8 @@ use gltf::{Document, Gltf, Mesh, Node, Semantic};
 use crate::error::InputError;
 use crate::input::model::{Generator, Part};
 
+/// The fix for a generator file that is not glTF at all.
+const NOT_GLTF_FIX: &str = "give the generator as glTF 2.0 (.glb, or .gltf with its buffers); re-export it from the modelling tool";
 const REEXPORT: &str = "re-export the file as glTF 2.0";
 const EMBED: &str =
     "re-export with embedded buffers (e.g. as .glb), or put the .bin file next to the .gltf file";
@@ -64,7 +66,13 @@ pub fn parse_generator(path: &Path, bytes: &[u8]) -> Result<Generator, InputErro
 /// scene with node transforms applied, by the same reader, checks and errors as the generator.
 /// Used by `sweptvol verify` for the mesh under test.
 pub fn read_world_triangles(path: &Path) -> Result<Vec<[DVec3; 3]>, InputError> {
-    let generator = read_generator(path)?;
+    // The mesh under test is no generator: a file of another kind gets the mesh's fix.
+    let generator = read_generator(path).map_err(|mut e| {
+        if e.fix == NOT_GLTF_FIX {
+            e.fix = "give the mesh to check as glTF 2.0: the NAME.swept.glb that `sweptvol run` wrote, or a .glb exported from the modelling tool".into();
+        }
+        e
+    })?;
     let mut out = Vec::with_capacity(generator.triangle_count());
     for part in &generator.parts {
         for t in &part.triangles {
@@ -184,7 +192,7 @@ fn check_container(path: &Path, bytes: &[u8]) -> Result<(), InputError> {
             "not a glTF or GLB file: it starts with the bytes {} ({ascii:?}); a .glb starts with \"glTF\", a .gltf with a JSON object",
             if hex.is_empty() { "(none: the file is empty)".to_string() } else { hex.join(" ") }
         ),
-        "give the generator as glTF 2.0 (.glb, or .gltf with its buffers); re-export it from the modelling tool",
+        NOT_GLTF_FIX,
     ))
 }
 

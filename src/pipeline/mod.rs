@@ -130,7 +130,7 @@ pub fn prepare(opts: &RunOptions) -> anyhow::Result<Prepared> {
         // Files of a set whose publishing a crash cut off are no complete output: replaced.
         let interrupted = atomic::interrupted_set(&outputs.marker);
         if let Some(existing) = outputs
-            .all()
+            .with_stale()
             .iter()
             .find(|p| p.exists() && !interrupted.contains(p))
         {
@@ -144,6 +144,16 @@ pub fn prepare(opts: &RunOptions) -> anyhow::Result<Prepared> {
             .into());
         }
     }
+    // A folder the outputs cannot be written to is found before the sweep, not after it.
+    atomic::probe_writable(&opts.out_dir).map_err(|why| {
+        OptionError::new(
+            OptionKey::Out,
+            format!(
+                "$out {}: {why}; nothing was written: choose another $out, or make it writable",
+                opts.out_dir.display()
+            ),
+        )
+    })?;
     build(opts, outputs)
 }
 
@@ -347,6 +357,9 @@ pub fn finish(job: &Prepared, swept: Swept, observer: &dyn Observer) -> anyhow::
     // under a marker: an error leaves nothing behind and never mixes old and new outputs, and a
     // crash between renames leaves the marker for the next run.
     let mut staged = atomic::Staged::with_marker(job.outputs.marker.clone());
+    for old in &job.outputs.stale {
+        staged.retire(old);
+    }
     let files = exr_depth::stage_all(&mut staged, &opts.out_dir, &stem, &images, &extra)?;
     debug_assert_eq!(files, job.outputs.depth);
     let secs = |a: Instant, b: Instant| (b - a).as_secs_f64();
@@ -470,7 +483,7 @@ pub fn finish(job: &Prepared, swept: Swept, observer: &dyn Observer) -> anyhow::
     staged.write(&job.outputs.report, &json)?;
     if !opts.overwrite {
         // Checked again: a long sweep gives another process time to write the same names.
-        if let Some(existing) = job.outputs.all().iter().find(|p| p.exists()) {
+        if let Some(existing) = job.outputs.with_stale().iter().find(|p| p.exists()) {
             return Err(OptionError::new(
                 OptionKey::Overwrite,
                 format!(

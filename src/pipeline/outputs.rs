@@ -75,6 +75,11 @@ pub struct OutputPaths {
     /// `.<stem>.incomplete`: present while the set is being published, listing its files
     /// (`io::atomic::Staged`); one left behind marks a set a crash cut off.
     pub marker: PathBuf,
+    /// Names of the same stem this run does not write but an earlier one may have (the start
+    /// mesh, `also` formats not asked for), other than the inputs: with `overwrite` they are
+    /// removed as the set is published, so no old mesh is read beside the new one; without,
+    /// one that exists stops the run as an existing output does.
+    pub stale: Vec<PathBuf>,
 }
 
 impl OutputPaths {
@@ -85,6 +90,13 @@ impl OutputPaths {
         out.push(self.report.clone());
         out.extend(self.start_mesh.iter().cloned());
         out.extend(self.also.iter().map(|(_, p)| p.clone()));
+        out
+    }
+
+    /// Every name of the set: [`OutputPaths::all`], then [`OutputPaths::stale`].
+    pub fn with_stale(&self) -> Vec<PathBuf> {
+        let mut out = self.all();
+        out.extend(self.stale.iter().cloned());
         out
     }
 }
@@ -99,6 +111,22 @@ pub fn output_paths(opts: &RunOptions) -> anyhow::Result<OutputPaths> {
         opts.out_dir
             .join(exr_depth::depth_file_name(&stem, i / 2, side))
     });
+    let inputs = [&opts.generator, &opts.trajectory].map(|p| p.canonicalize().ok());
+    let is_input = |p: &PathBuf| {
+        let real = p.canonicalize().ok();
+        real.is_some() && inputs.contains(&real)
+    };
+    let stale = (!opts.keep_start_mesh)
+        .then(|| at(START_MESH_SUFFIX))
+        .into_iter()
+        .chain(
+            MeshFormat::ALL
+                .into_iter()
+                .filter(|f| !opts.also.contains(f))
+                .map(|f| at(f.suffix())),
+        )
+        .filter(|p| !is_input(p))
+        .collect();
     Ok(OutputPaths {
         mesh: at(MESH_SUFFIX),
         depth,
@@ -108,6 +136,7 @@ pub fn output_paths(opts: &RunOptions) -> anyhow::Result<OutputPaths> {
         marker: opts
             .out_dir
             .join(format!(".{}", with_stem(&stem, INCOMPLETE_SUFFIX))),
+        stale,
     })
 }
 
