@@ -353,6 +353,8 @@ fn bad_shard_sets_are_refused() {
     let err = refused(&mesh_args(&[&big], &out), &out);
     assert!(err.contains("9997 shards of 9999: 2-4, 6-9999"), "{err}");
     assert!(err.len() < 1000, "{} bytes: {err}", err.len());
+    // The folder is named once, as the place of the error.
+    assert_eq!(err.matches(big.to_str().unwrap()).count(), 1, "{err}");
     // No shards at all.
     let empty = d.join("empty");
     fs::create_dir(&empty).unwrap();

@@ -533,7 +533,7 @@ impl ShardSet {
             return Err(InputError::new(
                 p.parent().unwrap_or(p),
                 format!(
-                    "{} missing (no shard-IIII-of-{:04}.json in {})",
+                    "{} missing (no shard-IIII-of-{:04}.json {})",
                     if n == 1 {
                         format!("shard {} of {}", progress.missing[0], m.shard.count)
                     } else {
@@ -544,7 +544,13 @@ impl ShardSet {
                         )
                     },
                     m.shard.count,
-                    dirs.iter().map(|d| d.display().to_string()).collect::<Vec<_>>().join(", ")
+                    // The error names the first folder; others are listed once.
+                    if dirs.len() == 1 {
+                        "there".to_string()
+                    } else {
+                        let all: Vec<String> = dirs.iter().map(|d| d.display().to_string()).collect();
+                        format!("in {}", all.join(", "))
+                    }
                 ),
                 format!(
                     "wait for them, or run `sweptvol sweep --shard I/{} ...` for each with the job's options",
