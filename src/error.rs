@@ -39,17 +39,31 @@ impl InputError {
     }
 }
 
+impl InputError {
+    /// The one line of `Display`, with the options that message and fix name as `$key`
+    /// (`pass $motion discrete`) spelled by `spell`, as each shell words them (see
+    /// [`OptionError`]).
+    pub fn worded(&self, spell: impl Fn(OptionKey) -> String) -> String {
+        let mut out = self.file.display().to_string();
+        if let Some(line) = self.line {
+            out += &format!(":{line}");
+        }
+        out += ": ";
+        if let Some(column) = &self.column {
+            out += &format!("{column}: ");
+        }
+        out += &format!(
+            "{} (fix: {})",
+            word(&self.message, &spell),
+            word(&self.fix, &spell)
+        );
+        out
+    }
+}
+
 impl fmt::Display for InputError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "{}", self.file.display())?;
-        if let Some(line) = self.line {
-            write!(f, ":{line}")?;
-        }
-        write!(f, ": ")?;
-        if let Some(column) = &self.column {
-            write!(f, "{column}: ")?;
-        }
-        write!(f, "{} (fix: {})", self.message, self.fix)
+        f.write_str(&self.worded(|k| k.name().to_string()))
     }
 }
 
@@ -72,10 +86,15 @@ pub enum OptionKey {
     Bound,
     Settle,
     Rescan,
+    Motion,
+    Classify,
+    Backend,
+    Radii,
+    MaxInputBytes,
 }
 
 impl OptionKey {
-    pub const ALL: [OptionKey; 12] = [
+    pub const ALL: [OptionKey; 17] = [
         OptionKey::Resolution,
         OptionKey::Tolerance,
         OptionKey::Delta,
@@ -88,6 +107,11 @@ impl OptionKey {
         OptionKey::Bound,
         OptionKey::Settle,
         OptionKey::Rescan,
+        OptionKey::Motion,
+        OptionKey::Classify,
+        OptionKey::Backend,
+        OptionKey::Radii,
+        OptionKey::MaxInputBytes,
     ];
 
     /// The library's name: snake_case, the same as the job.json key where there is one.
@@ -105,6 +129,11 @@ impl OptionKey {
             OptionKey::Bound => "bound",
             OptionKey::Settle => "settle",
             OptionKey::Rescan => "rescan",
+            OptionKey::Motion => "motion",
+            OptionKey::Classify => "classify",
+            OptionKey::Backend => "backend",
+            OptionKey::Radii => "radii",
+            OptionKey::MaxInputBytes => "max_input_bytes",
         }
     }
 
@@ -135,23 +164,35 @@ impl OptionError {
 
     /// The text with each `$key` spelled by `spell` (`OptionKey::flag` for the CLI).
     pub fn worded(&self, spell: impl Fn(OptionKey) -> String) -> String {
-        let mut out = String::with_capacity(self.template.len());
-        let mut rest = self.template.as_str();
-        while let Some(i) = rest.find('$') {
-            out.push_str(&rest[..i]);
-            let after = &rest[i + 1..];
-            let len = after
-                .find(|c: char| !(c.is_ascii_lowercase() || c == '_'))
-                .unwrap_or(after.len());
-            match OptionKey::ALL.iter().find(|k| k.name() == &after[..len]) {
-                Some(&k) => out.push_str(&spell(k)),
-                None => out.push_str(&rest[i..i + 1 + len]),
-            }
-            rest = &after[len..];
-        }
-        out.push_str(rest);
-        out
+        word(&self.template, spell)
     }
+}
+
+/// `template` with each `$key` that names an option spelled by `spell`; a `$` that names none
+/// stays as written. The library words its text this way, never with a shell's flags.
+pub fn word(template: &str, spell: impl Fn(OptionKey) -> String) -> String {
+    let mut out = String::with_capacity(template.len());
+    let mut rest = template;
+    while let Some(i) = rest.find('$') {
+        out.push_str(&rest[..i]);
+        let after = &rest[i + 1..];
+        let len = after
+            .find(|c: char| !(c.is_ascii_lowercase() || c == '_'))
+            .unwrap_or(after.len());
+        match OptionKey::ALL.iter().find(|k| k.name() == &after[..len]) {
+            Some(&k) => out.push_str(&spell(k)),
+            None => out.push_str(&rest[i..i + 1 + len]),
+        }
+        rest = &after[len..];
+    }
+    out.push_str(rest);
+    out
+}
+
+/// `template` in the library's own words: each `$key` as its plain name (`motion`), as text
+/// that no one shell owns (report.json) reads it.
+pub fn plain(template: &str) -> String {
+    word(template, |k| k.name().to_string())
 }
 
 impl fmt::Display for OptionError {

@@ -797,13 +797,19 @@ fn say(text: std::fmt::Arguments) -> std::io::Result<()> {
     }
 }
 
-/// The error chain as `{:#}` prints it, with option errors spelled as this command line's flags.
+/// The error chain as `{:#}` prints it, with the options that option and input errors name
+/// spelled as this command line's flags.
 fn in_cli_terms(e: &anyhow::Error) -> String {
     let parts: Vec<String> = e
         .chain()
-        .map(|c| match c.downcast_ref::<OptionError>() {
-            Some(o) => o.worded(OptionKey::flag),
-            None => c.to_string(),
+        .map(|c| {
+            if let Some(o) = c.downcast_ref::<OptionError>() {
+                o.worded(OptionKey::flag)
+            } else if let Some(i) = c.downcast_ref::<error::InputError>() {
+                i.worded(OptionKey::flag)
+            } else {
+                c.to_string()
+            }
         })
         .collect();
     parts.join(": ")

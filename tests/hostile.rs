@@ -227,7 +227,12 @@ fn motions_the_screw_cannot_follow_are_refused_by_line() {
         (
             "half.csv",
             "1,0,0,0,0,0,1,0",
-            &["half.csv:3", "180", "add a row between them"][..],
+            &[
+                "half.csv:3",
+                "180",
+                "add a row between them",
+                "set --motion to discrete",
+            ][..],
         ),
         // Back in time.
         (

@@ -969,3 +969,38 @@ fn a_job_folders_inputs_changed_during_its_run_publish_nothing_and_run_again() {
     d.signal(libc::SIGTERM);
     assert!(d.wait(Duration::from_secs(20)).success());
 }
+
+/// Issue 27: a watched job's texts name options as job.json keys, never as command-line flags
+/// (report.json said "--classify auto" and "--backend cpu"; a refused motion said "pass
+/// --motion discrete" in status.json). A done job's report and status, and a failed job's
+/// message and fix, hold no flag, and the failure names the key.
+#[test]
+fn a_watched_jobs_texts_name_job_keys_not_flags() {
+    let (_tmp, dir) = watched();
+    let ok = small_job(&dir, "fine");
+    let turn = submit(
+        &dir,
+        "turn",
+        &[
+            ("generator.glb", &tet_glb()),
+            (
+                "trajectory.csv",
+                b"frame,tx,ty,tz,qw,qx,qy,qz\n0,0,0,0,1,0,0,0\n1,0,0,0,0,0,1,0\n",
+            ),
+            ("job.json", br#"{"resolution": 16}"#),
+        ],
+    );
+    let (code, log) = once(&dir, &[]);
+    assert!(code.success(), "{log}");
+    assert_eq!(state(&ok.join("status.json")), "done", "{log}");
+    for file in ["report.json", "status.json"] {
+        let text = fs::read_to_string(ok.join(file)).unwrap();
+        assert!(!text.contains("--"), "{file} names a flag:\n{text}");
+    }
+    let s = status(&turn.join("status.json")).unwrap();
+    assert_eq!(s["state"], "failed", "{s:#}");
+    let message = s["message"].as_str().unwrap();
+    let fix = s["error"]["fix"].as_str().unwrap();
+    assert!(!message.contains("--") && !fix.contains("--"), "{s:#}");
+    assert!(fix.contains("set \"motion\" to discrete"), "{s:#}");
+}

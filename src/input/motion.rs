@@ -207,7 +207,7 @@ pub fn intervals(
             if a.s.determinant().signum() != b.s.determinant().signum() {
                 return Err(refuse(
                     format!("{name} is mirrored at line {l0} but not at line {l1} (or the other way): no rigid motion turns one into the other"),
-                    "mirror the part in every row or in none, or pass --motion discrete",
+                    "mirror the part in every row or in none, or set $motion to discrete",
                 ));
             }
             let rel_r = a.r.transpose() * b.r;
@@ -224,7 +224,7 @@ pub fn intervals(
                         "{name} turns by {:.2}° between lines {l0} and {l1}: a turn of 180° or more between two rows has no single shortest motion",
                         turn.to_degrees()
                     ),
-                    "add a row between them (a pose half way), or pass --motion discrete to sweep only the listed poses",
+                    "add a row between them (a pose half way), or set $motion to discrete to sweep only the listed poses",
                 ));
             }
             let omega = if turn > 0.0 {
@@ -393,7 +393,7 @@ pub fn sub_pose_steps(
     if report.poses_rendered > MAX_POSES {
         return Err(OptionError::new(
             OptionKey::Resolution,
-            format!("the continuous motion needs {} poses at this voxel size, more than the sweep can count ({MAX_POSES}; each renders every triangle of its part); use a coarser $resolution or a larger $tolerance, add rows to the trajectory, or sweep only the listed poses (--motion discrete)", report.poses_rendered),
+            format!("the continuous motion needs {} poses at this voxel size, more than the sweep can count ({MAX_POSES}; each renders every triangle of its part); use a coarser $resolution or a larger $tolerance, add rows to the trajectory, or sweep only the listed poses ($motion discrete)", report.poses_rendered),
         ));
     }
     Ok((steps, report))

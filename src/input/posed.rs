@@ -243,7 +243,7 @@ fn blame_farthest(
 }
 
 const FIX_FAR: &str =
-    "move the part nearer the world origin (subtract a common offset from the translations), or use a coarser grid (--tolerance)";
+    "move the part nearer the world origin (subtract a common offset from the translations), or use a coarser grid ($tolerance)";
 
 /// Refuse, before any grid is fitted, posed coordinates that f32 outputs cannot hold or that
 /// no grid fitted by resolution could tell apart (the box's extent at or below f32's rounding
@@ -431,7 +431,11 @@ pub fn build(
         margin_key,
     )?;
     if motion_box.is_some_and(|m| !finite(m)) {
-        anyhow::bail!("the continuous motion's bounding box overflows f64: move the part nearer the world origin, or pass --motion discrete");
+        return Err(OptionError::new(
+            OptionKey::Motion,
+            "the continuous motion's bounding box overflows f64: move the part nearer the world origin, or set $motion to discrete",
+        )
+        .into());
     }
     let (steps, mut motion_report) = if intervals.is_empty() {
         let poses = assigned.iter().map(|(_, p, _)| p.len() as u64).sum();

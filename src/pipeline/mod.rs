@@ -98,12 +98,14 @@ impl ClassifyPlan {
             format!("{}{more}", open[..open.len().min(n)].join(", "))
         };
         let (flood, reason) = match asked {
-            Method::Axes => (false, "asked for (--classify axes): condition ⋆ alone".to_string()),
-            Method::Flood if open.is_empty() => (true, "asked for (--classify flood); every part is closed".to_string()),
-            Method::Flood => (true, format!("asked for (--classify flood); open parts: {}: where the flood enters one through a hole, the result is a shell around its surface", open_text(3))),
-            Method::Auto if open.is_empty() => (true, "every part is closed, so the flood from outside cannot enter a part (--classify auto)".to_string()),
-            Method::Auto => (false, format!("open parts: {}: a flood could enter them, so condition ⋆ alone (--classify auto); --classify flood carves hidden pockets anyway", open_text(3))),
+            Method::Axes => (false, "asked for ($classify axes): condition ⋆ alone".to_string()),
+            Method::Flood if open.is_empty() => (true, "asked for ($classify flood); every part is closed".to_string()),
+            Method::Flood => (true, format!("asked for ($classify flood); open parts: {}: where the flood enters one through a hole, the result is a shell around its surface", open_text(3))),
+            Method::Auto if open.is_empty() => (true, "every part is closed, so the flood from outside cannot enter a part ($classify auto)".to_string()),
+            Method::Auto => (false, format!("open parts: {}: a flood could enter them, so condition ⋆ alone ($classify auto); $classify flood carves hidden pockets anyway", open_text(3))),
         };
+        // report.json is read by every shell's users: the options in its plain words.
+        let reason = crate::error::plain(&reason);
         ClassifyPlan { flood, reason }
     }
 }

@@ -1,11 +1,11 @@
 //! Which backend sweeps: a GPU device through wgpu (acquired once, reusable) or the CPU twin.
 
-use anyhow::bail;
 use serde::Serialize;
 
 use super::gpu::Gpu;
 use super::{cpu, reach, Observer};
 use crate::depth::DepthImages;
+use crate::error::{OptionError, OptionKey};
 use crate::input::posed::SweepInput;
 use crate::voxels::VoxelBits;
 
@@ -32,13 +32,15 @@ impl Backend {
     pub fn acquire(choice: BackendChoice) -> anyhow::Result<Backend> {
         match choice {
             BackendChoice::Cpu => Ok(Backend::Cpu {
-                reason: "--backend cpu".into(),
+                reason: crate::error::plain("$backend cpu"),
             }),
             BackendChoice::Gpu => match Gpu::acquire(true)? {
                 Some(g) => Ok(Backend::Gpu(Box::new(g))),
-                None => bail!(
-                    "--backend gpu: no Vulkan/Metal/DX12 adapter with compute shaders found; install a driver (on Debian, lavapipe: apt-get install mesa-vulkan-drivers libvulkan1) or use --backend cpu"
-                ),
+                None => Err(OptionError::new(
+                    OptionKey::Backend,
+                    "$backend gpu: no Vulkan/Metal/DX12 adapter with compute shaders found; install a driver (on Debian, lavapipe: apt-get install mesa-vulkan-drivers libvulkan1) or set $backend to cpu",
+                )
+                .into()),
             },
             BackendChoice::Auto => match Gpu::acquire(false)? {
                 Some(g) => Ok(Backend::Gpu(Box::new(g))),

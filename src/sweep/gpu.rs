@@ -4,7 +4,7 @@
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 
-use anyhow::{anyhow, bail, Context};
+use anyhow::{anyhow, Context};
 use bytemuck::{Pod, Zeroable};
 
 use super::{empty_encoded, Cancelled, Observer};
@@ -241,12 +241,16 @@ impl Gpu {
             .max_storage_buffer_binding_size
             .min(limits.max_buffer_size);
         if output_bytes.max(input_bytes) > binding_limit {
-            bail!(
-                "the sweep needs a {} MiB GPU buffer but {} allows {} MiB; lower the resolution or use --backend cpu",
-                output_bytes.max(input_bytes) >> 20,
-                self.info.name,
-                binding_limit >> 20
-            );
+            return Err(crate::error::OptionError::new(
+                crate::error::OptionKey::Backend,
+                format!(
+                    "the sweep needs a {} MiB GPU buffer but {} allows {} MiB; lower $resolution or set $backend to cpu",
+                    output_bytes.max(input_bytes) >> 20,
+                    self.info.name,
+                    binding_limit >> 20
+                ),
+            )
+            .into());
         }
         Ok(self.storage(
             "triangles",

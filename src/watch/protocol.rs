@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use crate::error::InputError;
+use crate::error::{InputError, OptionKey};
 use crate::input::grid::{Accuracy, Overrides, Radii};
 use crate::io::exr_depth::{depth_file_name, Side};
 use crate::io::mesh_formats::MeshFormat;
@@ -311,14 +311,26 @@ pub struct ErrorInfo {
 }
 
 impl From<&InputError> for ErrorInfo {
+    /// Options named in the message and fix are spelled by [`job_spelling`].
     fn from(e: &InputError) -> Self {
         ErrorInfo {
             file: e.file.clone(),
             line: e.line,
             column: e.column.clone(),
-            message: e.message.clone(),
-            fix: e.fix.clone(),
+            message: crate::error::word(&e.message, job_spelling),
+            fix: crate::error::word(&e.fix, job_spelling),
         }
+    }
+}
+
+/// How the watcher's texts (status.json) name an option: as its job.json key in double quotes
+/// (`"motion"`), which each client words as its own field; an option job.json has not is the
+/// daemon's own setting, named by its flag.
+pub fn job_spelling(k: OptionKey) -> String {
+    if JOB_KEY_LIST.contains(&k.name()) {
+        format!("\"{}\"", k.name())
+    } else {
+        format!("the daemon's {}", k.flag())
     }
 }
 

@@ -129,7 +129,7 @@ pub fn run(ctx: &Context, job: &QueuedJob) -> State {
         }
         Ok(Err(e)) => {
             let error = e.downcast_ref::<InputError>().map(ErrorInfo::from);
-            (State::Failed, format!("{e:#}"), error)
+            (State::Failed, job_text(&e), error)
         }
         Err(panic) => {
             let what = panic
@@ -259,7 +259,10 @@ fn execute(ctx: &Context, job: &QueuedJob, observer: &JobObserver) -> anyhow::Re
                 return Err(InputError::new(
                     &path,
                     format!("\"backend\": \"gpu\", but this daemon has no GPU ({reason})"),
-                    "remove \"backend\" (or set it to \"auto\"), or restart the daemon with --backend gpu",
+                    format!(
+                        "remove \"backend\" (or set it to \"auto\"), or restart the daemon with {} gpu",
+                        OptionKey::Backend.flag()
+                    ),
                 )
                 .into());
             }
@@ -296,16 +299,9 @@ fn in_job_terms(e: anyhow::Error, job_json: Option<&Path>) -> anyhow::Error {
     let is_job_key = |k: OptionKey| protocol::JOB_KEY_LIST.contains(&k.name());
     match (e.downcast::<OptionError>(), job_json) {
         (Ok(option), Some(path)) => {
-            let spell = |k: OptionKey| {
-                if is_job_key(k) {
-                    format!("\"{}\"", k.name())
-                } else {
-                    format!("the daemon's {}", k.flag())
-                }
-            };
             let error = InputError::new(
                 path,
-                option.worded(spell),
+                option.worded(protocol::job_spelling),
                 "change that value in job.json; docs/exchange-protocol.md lists the keys and their ranges",
             );
             if is_job_key(option.key) {
@@ -317,12 +313,32 @@ fn in_job_terms(e: anyhow::Error, job_json: Option<&Path>) -> anyhow::Error {
         (Ok(option), None) => anyhow::Error::new(OptionError::new(
             option.key,
             format!(
-                "{} (this drop has no job.json, so the daemon's --resolution or --tolerance applies: restart it with another value, or submit a job folder with a job.json)",
-                option.worded(OptionKey::flag)
+                "{} (this drop has no job.json, so the daemon's {} or {} applies: restart it with another value, or submit a job folder with a job.json)",
+                option.worded(OptionKey::flag),
+                OptionKey::Resolution.flag(),
+                OptionKey::Tolerance.flag()
             ),
         )),
         (Err(e), _) => e,
     }
+}
+
+/// An error as status.json's `message` holds it: the chain as `{:#}` prints it, with the
+/// options that option and input errors name spelled by [`protocol::job_spelling`].
+fn job_text(e: &anyhow::Error) -> String {
+    let parts: Vec<String> = e
+        .chain()
+        .map(|c| {
+            if let Some(o) = c.downcast_ref::<OptionError>() {
+                o.worded(protocol::job_spelling)
+            } else if let Some(i) = c.downcast_ref::<InputError>() {
+                i.worded(protocol::job_spelling)
+            } else {
+                c.to_string()
+            }
+        })
+        .collect();
+    parts.join(": ")
 }
 
 fn exists(path: &Path) -> bool {
@@ -387,7 +403,10 @@ fn check_size(
         return Err(InputError::new(
             &at,
             format!("the inputs hold {total} bytes, more than the daemon's limit of {limit} bytes; nothing was parsed"),
-            "simplify the mesh or shorten the trajectory, or restart the daemon with a larger --max-input-bytes",
+            format!(
+                "simplify the mesh or shorten the trajectory, or restart the daemon with a larger {}",
+                OptionKey::MaxInputBytes.flag()
+            ),
         ));
     }
     Ok(())
