@@ -567,7 +567,7 @@ impl ShardSet {
     }
 }
 
-/// Shard indices (ascending) as ranges, `1-5, 7, 9-12`, at most [`LISTED_RANGES`] of them
+/// Shard indices (ascending) as ranges, `1-5, 7, 9-12`, at most `LISTED_RANGES` (12) of them
 /// and then how many indices the rest hold: a message stays a line at any shard count.
 pub fn index_ranges(indices: &[u32]) -> String {
     let mut ranges: Vec<(u32, u32)> = Vec::new();
