@@ -91,10 +91,13 @@ pub enum OptionKey {
     Backend,
     Radii,
     MaxInputBytes,
+    TargetTriangles,
+    KeepStartMesh,
+    Also,
 }
 
 impl OptionKey {
-    pub const ALL: [OptionKey; 17] = [
+    pub const ALL: [OptionKey; 20] = [
         OptionKey::Resolution,
         OptionKey::Tolerance,
         OptionKey::Delta,
@@ -112,6 +115,9 @@ impl OptionKey {
         OptionKey::Backend,
         OptionKey::Radii,
         OptionKey::MaxInputBytes,
+        OptionKey::TargetTriangles,
+        OptionKey::KeepStartMesh,
+        OptionKey::Also,
     ];
 
     /// The library's name: snake_case, the same as the job.json key where there is one.
@@ -134,6 +140,9 @@ impl OptionKey {
             OptionKey::Backend => "backend",
             OptionKey::Radii => "radii",
             OptionKey::MaxInputBytes => "max_input_bytes",
+            OptionKey::TargetTriangles => "target_triangles",
+            OptionKey::KeepStartMesh => "keep_start_mesh",
+            OptionKey::Also => "also",
         }
     }
 

@@ -19,6 +19,7 @@
 //!   and then along the seams ([`simplify::blocked`]): quadric costs, a queue, per-region checks
 //!   (band, sweep, topology), then the self-intersection check and the commit.
 //! - [`surface`]: the mesh stage as one function, images in, mesh out, for every caller.
+//! - [`job`]: a job's options as one typed value, job.json's schema and the command line's.
 //! - [`pipeline`]: one run, files in to files out, with its named outputs and its report;
 //!   [`watch`] and `main.rs` are its shells.
 //! - [`verify`]: an independent certificate for any swept-volume mesh.
@@ -28,6 +29,7 @@ pub mod depth;
 pub mod error;
 pub mod input;
 pub mod io;
+pub mod job;
 pub mod mesh;
 pub mod pipeline;
 pub mod simplify;

@@ -13,10 +13,9 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use sweptvol::cluster;
 use sweptvol::error::{self, OptionError, OptionKey};
-use sweptvol::input::grid::{Accuracy, Overrides, Radii};
+use sweptvol::input::grid::Accuracy;
 use sweptvol::input::motion::Motion;
-use sweptvol::io::mesh_formats::MeshFormat;
-use sweptvol::mesh::classify::Method;
+use sweptvol::job::{file_stem, JobOptions};
 use sweptvol::pipeline::shard::{self, ShardId, MAX_SHARDS};
 use sweptvol::pipeline::{self, RunOptions};
 use sweptvol::sweep::backend::{Backend, BackendChoice};
@@ -62,26 +61,6 @@ enum Command {
 
 /// The command line's spelling of the library's choices (the library knows no clap).
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]
-enum BackendArg {
-    /// A hardware GPU if there is one, else the CPU twin.
-    Auto,
-    /// wgpu on any adapter, CPU adapters such as lavapipe included.
-    Gpu,
-    /// The CPU twin (rayon).
-    Cpu,
-}
-
-impl From<BackendArg> for BackendChoice {
-    fn from(b: BackendArg) -> Self {
-        match b {
-            BackendArg::Auto => BackendChoice::Auto,
-            BackendArg::Gpu => BackendChoice::Gpu,
-            BackendArg::Cpu => BackendChoice::Cpu,
-        }
-    }
-}
-
-#[derive(Clone, Copy, Debug, clap::ValueEnum)]
 enum BoundScopeArg {
     /// At every mesh point.
     Everywhere,
@@ -103,80 +82,6 @@ impl From<BoundScopeArg> for BoundScope {
 enum ExecutorArg {
     Local,
     Slurm,
-}
-
-#[derive(Clone, Copy, Debug, clap::ValueEnum)]
-enum MotionArg {
-    /// The screw motion from each row to the next (every point of it is covered).
-    Screw,
-    /// Only the listed poses (the paper's method).
-    Discrete,
-}
-
-impl From<MotionArg> for Motion {
-    fn from(m: MotionArg) -> Self {
-        match m {
-            MotionArg::Screw => Motion::Screw,
-            MotionArg::Discrete => Motion::Discrete,
-        }
-    }
-}
-
-#[derive(Clone, Copy, Debug, clap::ValueEnum)]
-enum RadiiArg {
-    /// The smallest δ and ε the exact checks need.
-    Exact,
-    /// The paper's δ and ε.
-    Paper,
-}
-
-impl From<RadiiArg> for Radii {
-    fn from(r: RadiiArg) -> Self {
-        match r {
-            RadiiArg::Exact => Radii::Exact,
-            RadiiArg::Paper => Radii::Paper,
-        }
-    }
-}
-
-#[derive(Clone, Copy, Debug, clap::ValueEnum)]
-enum ClassifyArg {
-    /// `flood` where every part of the generator is closed, else `axes`.
-    Auto,
-    /// Condition ⋆ less the flood from outside: no blind spots.
-    Flood,
-    /// Condition ⋆ alone (the paper's).
-    Axes,
-}
-
-impl From<ClassifyArg> for Method {
-    fn from(m: ClassifyArg) -> Self {
-        match m {
-            ClassifyArg::Auto => Method::Auto,
-            ClassifyArg::Flood => Method::Flood,
-            ClassifyArg::Axes => Method::Axes,
-        }
-    }
-}
-
-#[derive(Clone, Copy, Debug, clap::ValueEnum)]
-enum FormatArg {
-    /// Binary STL with outward facet normals.
-    Stl,
-    /// Binary little-endian PLY.
-    Ply,
-    /// Wavefront OBJ.
-    Obj,
-}
-
-impl From<FormatArg> for MeshFormat {
-    fn from(f: FormatArg) -> Self {
-        match f {
-            FormatArg::Stl => MeshFormat::Stl,
-            FormatArg::Ply => MeshFormat::Ply,
-            FormatArg::Obj => MeshFormat::Obj,
-        }
-    }
 }
 
 #[derive(Args)]
@@ -207,8 +112,8 @@ struct WatchArgs {
     #[arg(long, value_name = "N", default_value_t = 1, value_parser = at_least_one)]
     jobs: usize,
     /// Where sweeps run; the GPU device is acquired once and reused by every job.
-    #[arg(long, value_enum, default_value_t = BackendArg::Auto)]
-    backend: BackendArg,
+    #[arg(long, value_enum, default_value_t = BackendChoice::Auto)]
+    backend: BackendChoice,
     /// Voxels along the longest edge, for jobs whose job.json names neither resolution nor
     /// tolerance, and for drops [default: 256].
     #[arg(long, value_name = "N", conflicts_with = "tolerance")]
@@ -270,7 +175,7 @@ struct VerifyArgs {
     /// What to certify between rows: `screw`, every instant of the screw motion from each row
     /// to the next (verify's own interpolation and bound); or `discrete`, the listed poses.
     #[arg(long, value_enum, default_value = "screw")]
-    motion: MotionArg,
+    motion: Motion,
     /// Print the report as JSON on stdout (no progress bar).
     #[arg(long)]
     json: bool,
@@ -290,59 +195,16 @@ struct RunArgs {
     /// Output folder (created if missing).
     #[arg(long, value_name = "DIR")]
     out: PathBuf,
-    /// Voxels along the longest edge of the grid [default: 256 unless --tolerance is given].
-    #[arg(long, value_name = "N", conflicts_with = "tolerance")]
-    resolution: Option<u32>,
-    /// The stated Hausdorff bound in world units; sets the voxel size h = t/(k + μ/h): k = 3.29
-    /// with the exact radii, 4.88 with the paper's; μ/h = ¼ for screw motion, 0 for discrete.
-    #[arg(long, value_name = "T", allow_negative_numbers = true)]
-    tolerance: Option<f64>,
-    /// Offset radius δ in world units [default: by --radii].
-    #[arg(long, value_name = "D", allow_negative_numbers = true)]
-    delta: Option<f64>,
-    /// Simplification tolerance ε in world units [default: by --radii].
-    #[arg(long, value_name = "E", allow_negative_numbers = true)]
-    epsilon: Option<f64>,
-    /// Where the sweep runs: auto takes a hardware GPU if present, else the CPU.
-    #[arg(long, value_enum, default_value_t = BackendArg::Auto)]
-    backend: BackendArg,
-    /// Output file stem [default: the trajectory's file stem].
-    #[arg(long, value_parser = file_stem)]
-    name: Option<String>,
+    #[command(flatten)]
+    job: JobOptions,
     /// Bare output names (swept.glb, report.json), as in a watched job folder: how a watched
     /// job's shards are swept on a cluster.
     #[arg(long, hide = true, conflicts_with = "name")]
     bare_names: bool,
-    /// Stop simplifying at this many triangles (the error bound always wins) [default: as far as
-    /// the bound allows].
-    #[arg(long, value_name = "N")]
-    target_triangles: Option<usize>,
-    /// Also write the unsimplified voxel boundary as NAME.start.glb.
-    #[arg(long)]
-    keep_start_mesh: bool,
-    /// Also write the swept mesh as NAME.swept.stl (binary, outward normals), .ply (binary) or
-    /// .obj: a comma-separated list.
-    #[arg(long, value_enum, value_delimiter = ',', value_name = "FORMATS")]
-    also: Vec<FormatArg>,
     /// Run even when the memory estimate (from the grid size, made for parts that fill their
     /// box) exceeds what is available; for thin or sparse parts it can be far too high.
     #[arg(long)]
     no_memory_check: bool,
-    /// What moves the part between rows: `screw`, the constant-velocity screw motion from each
-    /// row to the next, covered with a derived bound; or `discrete`, only the listed poses.
-    #[arg(long, value_enum, default_value = "screw")]
-    motion: MotionArg,
-    /// How voxels are classified: `auto` floods from outside where every part is closed, else
-    /// `axes`; `flood`: condition ⋆ less what a flood from outside reaches without crossing the
-    /// offset (no concavity filled; an open part may come out as a shell around its surface);
-    /// `axes`: condition ⋆ alone (the paper's; concavities no axis sees are filled).
-    #[arg(long, value_enum, default_value = "auto")]
-    classify: ClassifyArg,
-    /// δ and ε where --delta and --epsilon are not given: `exact`, sized for the simplifier's
-    /// exact checks (δ ≈ 1.54h, ε = 0.6h; stated bound about 3.2h + μ); `paper`, the
-    /// paper's (δ = (2√3+√2)h/2, ε = √3h/2; about 4.17h + μ).
-    #[arg(long, value_enum, default_value = "exact")]
-    radii: RadiiArg,
     /// Replace existing outputs.
     #[arg(long)]
     overwrite: bool,
@@ -447,37 +309,28 @@ impl Observer for Bar {
 }
 
 fn run_options(args: &RunArgs) -> RunOptions {
-    RunOptions {
-        generator: args.generator.clone(),
-        trajectory: args.trajectory.clone(),
-        out_dir: args.out.clone(),
-        name: if args.bare_names {
-            Some(String::new())
-        } else {
-            args.name.clone()
-        },
-        accuracy: Accuracy::choose(args.resolution, args.tolerance, Accuracy::DEFAULT),
-        overrides: Overrides {
-            delta: args.delta,
-            epsilon: args.epsilon,
-            radii: args.radii.into(),
-        },
-        overwrite: args.overwrite,
-        target_triangles: args.target_triangles.unwrap_or(0),
-        keep_start_mesh: args.keep_start_mesh,
-        also: args.also.iter().map(|&f| f.into()).collect(),
-        check_memory: !args.no_memory_check,
-        motion: args.motion.into(),
-        classify: args.classify.into(),
+    let mut run = RunOptions::of_job(
+        &args.job,
+        args.generator.clone(),
+        args.trajectory.clone(),
+        args.out.clone(),
+        Accuracy::DEFAULT,
+    );
+    if args.bare_names {
+        run.name = Some(String::new());
     }
+    run.overwrite = args.overwrite;
+    run.check_memory = !args.no_memory_check;
+    run
 }
 
 /// The backend asked for; a fallback to the CPU is logged unless `quiet` (a successful quiet
 /// run prints nothing).
-fn acquire_backend(choice: BackendArg, quiet: bool) -> anyhow::Result<Backend> {
-    let backend = Backend::acquire(choice.into())?;
+fn acquire_backend(choice: Option<BackendChoice>, quiet: bool) -> anyhow::Result<Backend> {
+    let choice = choice.unwrap_or(BackendChoice::Auto);
+    let backend = Backend::acquire(choice)?;
     if let Backend::Cpu { reason } = &backend {
-        if matches!(choice, BackendArg::Auto) && !quiet {
+        if choice == BackendChoice::Auto && !quiet {
             tracing::warn!("{reason}");
         }
     }
@@ -505,7 +358,7 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
     let opts = run_options(&args);
     // Inputs first: a bad file is reported before any GPU start-up.
     let job = pipeline::prepare(&opts)?;
-    let backend = acquire_backend(args.backend, args.quiet)?;
+    let backend = acquire_backend(args.job.backend, args.quiet)?;
     let observer = progress_bar(args.quiet);
     let report = pipeline::execute(&job, &backend, &observer)?;
     observer.bar.finish_and_clear();
@@ -528,7 +381,7 @@ fn log_done(report: &pipeline::Report, out: &std::path::Path) {
 
 fn sweep_shard(args: SweepArgs) -> anyhow::Result<()> {
     let opts = run_options(&args.run);
-    let backend = acquire_backend(args.run.backend, args.run.quiet)?;
+    let backend = acquire_backend(args.run.job.backend, args.run.quiet)?;
     let observer = progress_bar(args.run.quiet);
     match shard::sweep_shard(&opts, args.shard, &backend, &observer)? {
         shard::ShardOutcome::Swept(m) => {
@@ -582,7 +435,7 @@ fn cluster(command: ClusterCommand) -> anyhow::Result<()> {
                 sweep_sbatch: args.sweep_sbatch,
                 merge_sbatch: args.merge_sbatch,
                 retries: args.retries,
-                backend: args.run.backend.into(),
+                backend: args.run.job.backend.unwrap_or(BackendChoice::Auto),
             })?;
             match &s.sweep_job {
                 Some(id) => say(format_args!(
@@ -653,7 +506,7 @@ fn watch(args: WatchArgs) -> anyhow::Result<()> {
         settle: secs(OptionKey::Settle, args.settle)?,
         rescan: secs(OptionKey::Rescan, args.rescan)?.max(Duration::from_millis(100)),
         jobs: args.jobs,
-        backend: args.backend.into(),
+        backend: args.backend,
         default_accuracy: Accuracy::choose(args.resolution, args.tolerance, Accuracy::DEFAULT),
         max_input_bytes: args.max_input_bytes,
     };
@@ -687,7 +540,7 @@ fn verify(args: VerifyArgs) -> anyhow::Result<ExitCode> {
         bound_scope: args.bound_scope.into(),
         spacing: args.spacing,
         all_failures: args.all_failures,
-        motion: args.motion.into(),
+        motion: args.motion,
     };
     let bar = if args.quiet || args.json {
         ProgressBar::hidden()
@@ -777,14 +630,6 @@ fn at_least_one(s: &str) -> Result<usize, String> {
         Ok(n) => Ok(n),
         Err(e) => Err(e.to_string()),
     }
-}
-
-/// An output file stem: a name, not empty and not a path.
-fn file_stem(s: &str) -> Result<String, String> {
-    if s.is_empty() || s == "." || s == ".." || s.contains('/') || s.contains('\0') {
-        return Err("must be a file name stem such as part (not empty, no folder)".into());
-    }
-    Ok(s.to_string())
 }
 
 /// Write `text` to stdout. A reader that went away (a closed pipe: `| head`) ends the output

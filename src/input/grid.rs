@@ -67,7 +67,9 @@ impl Accuracy {
 }
 
 /// Which δ and ε a run takes where the user gives neither.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, serde::Deserialize)]
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, serde::Deserialize, clap::ValueEnum,
+)]
 #[serde(rename_all = "lowercase")]
 pub enum Radii {
     /// Radii for the simplifier's exact checks (docs/design.md, "The radii"): ε = 0.6h,

@@ -21,7 +21,7 @@ use crate::input::model::{Generator, Trajectory};
 use crate::input::posed::PartPoses;
 
 /// What moves the part between the rows of its trajectory.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum Motion {
     /// The screw motion from each row to the next (the default): the whole motion is covered.

@@ -10,7 +10,7 @@ use crate::io::gltf_out::world_positions;
 use crate::mesh::Mesh;
 
 /// An extra output format (`--also`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum MeshFormat {
     /// Binary STL: one facet per triangle with its outward unit normal.

@@ -19,7 +19,7 @@ use crate::depth::{DepthImage, DepthImages};
 use crate::voxels::VoxelBits;
 
 /// How voxels are classified.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum Method {
     /// `flood` when every part of the generator is closed, else `axes` (the default).

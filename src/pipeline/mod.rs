@@ -31,6 +31,7 @@ use crate::input::posed::{self, SweepInput};
 use crate::io::exr_depth::{self, ExtraMeta};
 use crate::io::mesh_formats::MeshFormat;
 use crate::io::{atomic, gltf_in, gltf_out, trajectory};
+use crate::job::JobOptions;
 use crate::mesh::classify::Method;
 use crate::mesh::Mesh;
 use crate::simplify::SimplifyOptions;
@@ -63,6 +64,39 @@ pub struct RunOptions {
     pub motion: Motion,
     /// How voxels are classified: condition ⋆ with or without the flood from outside.
     pub classify: Method,
+}
+
+impl RunOptions {
+    /// The run of `job`: `generator` along `trajectory`, outputs into `out_dir`, with
+    /// `default_accuracy` where the job gives neither resolution nor tolerance. It replaces no
+    /// output and checks its memory estimate until told otherwise.
+    pub fn of_job(
+        job: &JobOptions,
+        generator: PathBuf,
+        trajectory: PathBuf,
+        out_dir: PathBuf,
+        default_accuracy: Accuracy,
+    ) -> RunOptions {
+        RunOptions {
+            generator,
+            trajectory,
+            out_dir,
+            name: job.name.clone(),
+            accuracy: Accuracy::choose(job.resolution, job.tolerance, default_accuracy),
+            overrides: Overrides {
+                delta: job.delta,
+                epsilon: job.epsilon,
+                radii: job.radii,
+            },
+            overwrite: false,
+            target_triangles: job.target_triangles.unwrap_or(0),
+            keep_start_mesh: job.keep_start_mesh,
+            also: job.also.clone(),
+            check_memory: true,
+            motion: job.motion,
+            classify: job.classify,
+        }
+    }
 }
 
 /// The classification chosen for a job, and why (from `RunOptions::classify` and whether every

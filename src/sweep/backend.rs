@@ -10,7 +10,7 @@ use crate::input::posed::SweepInput;
 use crate::voxels::VoxelBits;
 
 /// Which sweep implementation runs.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, serde::Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, serde::Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum BackendChoice {
     /// A hardware GPU if there is one, else the CPU twin.

@@ -8,11 +8,10 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{InputError, OptionKey};
-use crate::input::grid::{Accuracy, Overrides, Radii};
+use crate::input::grid::{Accuracy, Radii};
 use crate::io::exr_depth::{depth_file_name, Side};
 use crate::io::mesh_formats::MeshFormat;
 use crate::pipeline::{self, RunOptions};
-use crate::sweep::backend::BackendChoice;
 
 /// A folder being written by a client: never read. Renaming it without the suffix commits it.
 pub const PARTIAL_SUFFIX: &str = ".partial";
@@ -345,43 +344,10 @@ pub fn parse_recorded(bytes: &[u8]) -> Option<Recorded> {
     serde_json::from_slice(bytes).ok()
 }
 
-/// `job.json`: the keys mirror `sweptvol run`'s options. Unknown keys are errors.
-#[derive(Clone, Debug, Default, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct JobOptions {
-    pub resolution: Option<u32>,
-    pub tolerance: Option<f64>,
-    pub delta: Option<f64>,
-    pub epsilon: Option<f64>,
-    pub backend: Option<BackendChoice>,
-    pub name: Option<String>,
-    pub target_triangles: Option<usize>,
-    pub keep_start_mesh: Option<bool>,
-    /// Extra mesh formats: any of "stl", "ply", "obj".
-    pub also: Option<Vec<MeshFormat>>,
-    /// "screw" (the default: the motion between rows is covered) or "discrete".
-    pub motion: Option<Motion>,
-    /// "auto" (the default), "flood" or "axes": how voxels are classified.
-    pub classify: Option<Method>,
-    /// "exact" (the default) or "paper": δ and ε where the job gives neither.
-    pub radii: Option<Radii>,
-}
-
-/// The keys of `job.json`, as `JobOptions` names its fields.
-pub const JOB_KEY_LIST: [&str; 12] = [
-    "resolution",
-    "tolerance",
-    "delta",
-    "epsilon",
-    "backend",
-    "name",
-    "target_triangles",
-    "keep_start_mesh",
-    "also",
-    "motion",
-    "classify",
-    "radii",
-];
+/// `job.json` is the job's options, one typed value for every shell (`crate::job`).
+pub use crate::job::JobOptions;
+/// The keys of `job.json`: `JobOptions`'s fields.
+pub use crate::job::JOB_KEYS as JOB_KEY_LIST;
 
 /// Parse `job.json` bytes; `path` names the file in errors (with serde_json's line and column).
 pub fn parse_job_options(path: &Path, bytes: &[u8]) -> Result<JobOptions, InputError> {
@@ -419,38 +385,27 @@ pub fn parse_job_options(path: &Path, bytes: &[u8]) -> Result<JobOptions, InputE
     Ok(opts)
 }
 
-impl JobOptions {
-    /// The options for `pipeline`, with `default_accuracy` where the job names none. The
-    /// daemon owns the output names, so it replaces its own earlier outputs.
-    pub fn run_options(
-        &self,
-        generator: PathBuf,
-        trajectory: PathBuf,
-        id: &JobId,
-        root: &Path,
-        default_accuracy: Accuracy,
-    ) -> RunOptions {
-        let accuracy = Accuracy::choose(self.resolution, self.tolerance, default_accuracy);
-        RunOptions {
-            generator,
-            trajectory,
-            out_dir: id.out_dir(root),
-            name: Some(id.stem().to_string()),
-            accuracy,
-            overrides: Overrides {
-                delta: self.delta,
-                epsilon: self.epsilon,
-                radii: self.radii.unwrap_or_default(),
-            },
-            overwrite: true,
-            target_triangles: self.target_triangles.unwrap_or(0),
-            keep_start_mesh: self.keep_start_mesh.unwrap_or(false),
-            also: self.also.clone().unwrap_or_default(),
-            check_memory: true,
-            motion: self.motion.unwrap_or_default(),
-            classify: self.classify.unwrap_or_default(),
-        }
-    }
+/// The run of a watched job: `options` with `default_accuracy` where the job names none, into
+/// the job's output folder under its own stem. The daemon owns the output names, so it replaces
+/// its own earlier outputs.
+pub fn run_options(
+    options: &JobOptions,
+    generator: PathBuf,
+    trajectory: PathBuf,
+    id: &JobId,
+    root: &Path,
+    default_accuracy: Accuracy,
+) -> RunOptions {
+    let mut run = RunOptions::of_job(
+        options,
+        generator,
+        trajectory,
+        id.out_dir(root),
+        default_accuracy,
+    );
+    run.name = Some(id.stem().to_string());
+    run.overwrite = true;
+    run
 }
 
 #[cfg(test)]
@@ -508,9 +463,9 @@ mod tests {
         assert!(parse_job_options(p, br#"{"resolution": 32, "tolerance": 0.1}"#).is_err());
         let ok =
             parse_job_options(p, br#"{"resolution": 32, "backend": "cpu", "name": "x"}"#).unwrap();
-        assert_eq!(ok.backend, Some(BackendChoice::Cpu));
+        assert_eq!(ok.backend, Some(crate::sweep::backend::BackendChoice::Cpu));
         let also = parse_job_options(p, br#"{"also": ["stl", "obj"]}"#).unwrap();
-        assert_eq!(also.also, Some(vec![MeshFormat::Stl, MeshFormat::Obj]));
+        assert_eq!(also.also, vec![MeshFormat::Stl, MeshFormat::Obj]);
         assert!(parse_job_options(p, br#"{"also": ["step"]}"#).is_err());
         for f in MeshFormat::ALL {
             assert!(is_output_name(f.suffix()), "{f:?}");

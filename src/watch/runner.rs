@@ -236,7 +236,14 @@ fn execute(ctx: &Context, job: &QueuedJob, observer: &JobObserver) -> anyhow::Re
         let name = name.clone();
         job.status.update(|s| s.name = name);
     }
-    let opts = options.run_options(generator, trajectory, &job.id, root, ctx.default_accuracy);
+    let opts = protocol::run_options(
+        &options,
+        generator,
+        trajectory,
+        &job.id,
+        root,
+        ctx.default_accuracy,
+    );
     remove_stale_temporaries(&opts, &job.id.status_path(root))?;
     let prepared = pipeline::prepare(&opts).map_err(|e| in_job_terms(e, job_json.as_deref()))?;
     if let Executor::Slurm(slurm) = ctx.executor {
