@@ -7,6 +7,8 @@
 //! Adding an option: a field here with its help text (which clap shows) and, where a message
 //! must name it, an [`OptionKey`] of the same name (a test holds them together).
 
+use std::path::PathBuf;
+
 use serde::{Deserialize, Serialize};
 
 use crate::error::OptionKey;
@@ -66,6 +68,22 @@ pub struct JobOptions {
     /// paper's (δ = (2√3+√2)h/2, ε = √3h/2; about 4.17h + μ).
     #[arg(long, value_enum, default_value_t)]
     pub radii: Radii,
+}
+
+/// A whole job as one file, as `cluster submit` writes it for its array tasks (`sweep --job
+/// FILE --shard I/N`): the inputs (absolute paths, valid on every node), where the shards go,
+/// and the options resolved as the run takes them. Nothing is turned back into arguments.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct JobFile {
+    pub generator: PathBuf,
+    pub trajectory: PathBuf,
+    /// The shard folder the sweep writes to.
+    pub out: PathBuf,
+    pub options: JobOptions,
+    /// Run even when the memory estimate exceeds what is available.
+    #[serde(default)]
+    pub no_memory_check: bool,
 }
 
 /// The keys of job.json: [`JobOptions`]'s fields, in order (a test holds them to the struct).

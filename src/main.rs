@@ -186,15 +186,34 @@ struct VerifyArgs {
 
 #[derive(Args)]
 struct RunArgs {
+    /// The job as a file instead of the inputs, options and folder below: its inputs, options
+    /// and output folder, as `cluster submit` writes it (job.json in the shard folder).
+    #[arg(long = "job", value_name = "FILE", conflicts_with_all = ["JobOptions", "bare_names"])]
+    job_file: Option<PathBuf>,
     /// The generator mesh: glTF 2.0 (.glb, or .gltf with its buffers beside it).
-    #[arg(long, value_name = "FILE")]
-    generator: PathBuf,
+    #[arg(
+        long,
+        value_name = "FILE",
+        required_unless_present = "job_file",
+        conflicts_with = "job_file"
+    )]
+    generator: Option<PathBuf>,
     /// The poses: CSV with m00..m33 or tx,ty,tz,qw,qx,qy,qz columns (see the README).
-    #[arg(long, value_name = "FILE")]
-    trajectory: PathBuf,
+    #[arg(
+        long,
+        value_name = "FILE",
+        required_unless_present = "job_file",
+        conflicts_with = "job_file"
+    )]
+    trajectory: Option<PathBuf>,
     /// Output folder (created if missing).
-    #[arg(long, value_name = "DIR")]
-    out: PathBuf,
+    #[arg(
+        long,
+        value_name = "DIR",
+        required_unless_present = "job_file",
+        conflicts_with = "job_file"
+    )]
+    out: Option<PathBuf>,
     #[command(flatten)]
     job: JobOptions,
     /// Bare output names (swept.glb, report.json), as in a watched job folder: how a watched
@@ -308,20 +327,31 @@ impl Observer for Bar {
     }
 }
 
-fn run_options(args: &RunArgs) -> RunOptions {
-    let mut run = RunOptions::of_job(
-        &args.job,
-        args.generator.clone(),
-        args.trajectory.clone(),
-        args.out.clone(),
-        Accuracy::DEFAULT,
-    );
+/// The run the arguments ask for (from the job file with --job), and its backend.
+fn run_options(args: &RunArgs) -> anyhow::Result<(RunOptions, Option<BackendChoice>)> {
+    let (mut run, backend) = match (&args.job_file, &args.generator, &args.trajectory, &args.out) {
+        (Some(file), ..) => {
+            let job = read_job_file(file)?;
+            (RunOptions::of_job_file(&job), job.options.backend)
+        }
+        (None, Some(g), Some(t), Some(out)) => {
+            let run = RunOptions::of_job(
+                &args.job,
+                g.clone(),
+                t.clone(),
+                out.clone(),
+                Accuracy::DEFAULT,
+            );
+            (run, args.job.backend)
+        }
+        _ => unreachable!("clap requires --generator, --trajectory and --out without --job"),
+    };
     if args.bare_names {
         run.name = Some(String::new());
     }
     run.overwrite = args.overwrite;
-    run.check_memory = !args.no_memory_check;
-    run
+    run.check_memory &= !args.no_memory_check;
+    Ok((run, backend))
 }
 
 /// The backend asked for; a fallback to the CPU is logged unless `quiet` (a successful quiet
@@ -355,10 +385,10 @@ fn progress_bar(quiet: bool) -> Bar {
 }
 
 fn run(args: RunArgs) -> anyhow::Result<()> {
-    let opts = run_options(&args);
+    let (opts, backend) = run_options(&args)?;
     // Inputs first: a bad file is reported before any GPU start-up.
     let job = pipeline::prepare(&opts)?;
-    let backend = acquire_backend(args.job.backend, args.quiet)?;
+    let backend = acquire_backend(backend, args.quiet)?;
     let observer = progress_bar(args.quiet);
     let report = pipeline::execute(&job, &backend, &observer)?;
     observer.bar.finish_and_clear();
@@ -380,8 +410,8 @@ fn log_done(report: &pipeline::Report, out: &std::path::Path) {
 }
 
 fn sweep_shard(args: SweepArgs) -> anyhow::Result<()> {
-    let opts = run_options(&args.run);
-    let backend = acquire_backend(args.run.job.backend, args.run.quiet)?;
+    let (opts, backend) = run_options(&args.run)?;
+    let backend = acquire_backend(backend, args.run.quiet)?;
     let observer = progress_bar(args.run.quiet);
     match shard::sweep_shard(&opts, args.shard, &backend, &observer)? {
         shard::ShardOutcome::Swept(m) => {
@@ -406,6 +436,22 @@ fn sweep_shard(args: SweepArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// A job file (`cluster submit` writes them), refused by name when it is not one.
+fn read_job_file(path: &std::path::Path) -> anyhow::Result<sweptvol::job::JobFile> {
+    let bytes = std::fs::read(path).map_err(|e| {
+        error::InputError::new(path, format!("cannot read it: {e}"), "check the path")
+    })?;
+    serde_json::from_slice(&bytes).map_err(|e| {
+        error::InputError::new(
+            path,
+            format!("not a sweptvol job file: {e}"),
+            "give the job.json that `sweptvol cluster submit` wrote in the shard folder",
+        )
+        .at_line(e.line() as u64)
+        .into()
+    })
+}
+
 fn mesh(args: MeshArgs) -> anyhow::Result<()> {
     let (job, swept) = shard::merge(&args.from, args.out.clone(), args.name, args.overwrite)?;
     let report = pipeline::finish(&job, swept, &sweptvol::sweep::Silent)?;
@@ -417,7 +463,7 @@ fn cluster(command: ClusterCommand) -> anyhow::Result<()> {
     match command {
         ClusterCommand::Submit(args) => {
             let args = *args;
-            let run = run_options(&args.run);
+            let (run, backend) = run_options(&args.run)?;
             let shard_dir = match args.shard_dir {
                 Some(d) => d,
                 None => cluster::default_shard_dir(&run)?,
@@ -435,7 +481,7 @@ fn cluster(command: ClusterCommand) -> anyhow::Result<()> {
                 sweep_sbatch: args.sweep_sbatch,
                 merge_sbatch: args.merge_sbatch,
                 retries: args.retries,
-                backend: args.run.job.backend.unwrap_or(BackendChoice::Auto),
+                backend: backend.unwrap_or(BackendChoice::Auto),
             })?;
             match &s.sweep_job {
                 Some(id) => say(format_args!(

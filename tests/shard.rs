@@ -364,3 +364,52 @@ fn bad_shard_sets_are_refused() {
     ok(&mesh_args(&[&shards], &out));
     assert!(out.join("part.swept.glb").exists());
 }
+
+/// Issue 27: `cluster submit`'s tasks read the job from a file (`sweep --job FILE --shard I/N`)
+/// instead of options turned back into arguments; the shards they write merge to `run`'s bytes,
+/// and a file that is not a job file is refused by name.
+#[test]
+fn shards_swept_from_a_job_file_merge_to_the_runs_bytes() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let mut rng = Rng::with_seed(27);
+    let (g, t, extra) = random_job(&mut rng, d);
+    let extra: Vec<&str> = extra.iter().map(String::as_str).collect();
+    let run = d.join("run");
+    ok(&run_args(&g, &t, &run, &extra));
+    // The options as `cluster::job_file` writes them: resolution and motion from `extra`.
+    let n: u32 = extra[1].parse().unwrap();
+    let shards = d.join("shards");
+    let job = serde_json::json!({
+        "generator": fs::canonicalize(&g).unwrap(),
+        "trajectory": fs::canonicalize(&t).unwrap(),
+        "out": shards,
+        "options": {"resolution": n, "motion": extra[3], "backend": "cpu"},
+    });
+    let file = write(d, "job.json", serde_json::to_vec_pretty(&job).unwrap());
+    for i in 1..=3 {
+        ok(&[
+            "sweep".to_string(),
+            "--job".into(),
+            file.to_str().unwrap().into(),
+            "--shard".into(),
+            format!("{i}/3"),
+        ]);
+    }
+    let merged = d.join("merged");
+    ok(&mesh_args(&[&shards], &merged));
+    assert_same_outputs(&run, &merged, "job file, 3 shards");
+
+    let bad = write(
+        d,
+        "bad.json",
+        r#"{"generator": "g", "trajectory": "t", "out": "o", "options": {}, "shards": 3}"#,
+    );
+    let o = sweptvol(&["sweep", "--job", bad.to_str().unwrap(), "--shard", "1/3"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("bad.json") && err.contains("not a sweptvol job file"),
+        "{err}"
+    );
+}

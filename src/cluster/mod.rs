@@ -1,6 +1,7 @@
 //! A job on a SLURM cluster: `cluster submit` writes two batch scripts into the job's shard
 //! folder (on a filesystem every node shares) and submits an array of shard sweeps
-//! (`sweptvol sweep --shard I/N`) and a merge (`sweptvol mesh`) that runs once all succeeded;
+//! (`sweptvol sweep --job job.json --shard I/N`, the job read from a file in the shard folder)
+//! and a merge (`sweptvol mesh`) that runs once all succeeded;
 //! `cluster status` reads the shard manifests and asks SLURM about the jobs.
 //!
 //! Only the shards without a finished manifest of the same job are submitted, so a second
@@ -15,8 +16,8 @@ use anyhow::Context;
 use serde::{Deserialize, Serialize};
 
 use crate::error::InputError;
-use crate::input::grid::Accuracy;
 use crate::io::atomic;
+use crate::job::JobFile;
 use crate::pipeline::shard::{JobSpec, ShardId, ShardProgress};
 use crate::pipeline::{self, RunOptions};
 use crate::sweep::backend::BackendChoice;
@@ -70,57 +71,28 @@ pub struct Submission {
 
 pub const SUBMISSIONS: &str = "submissions.json";
 
-/// `run`'s options as `sweptvol sweep` arguments (all but `--shard` and `--out`): what the
-/// array's tasks run. Paths are made absolute; numbers print exactly (shortest round trip).
-pub fn sweep_args(opts: &RunOptions) -> anyhow::Result<Vec<String>> {
-    let abs = |p: &Path| -> anyhow::Result<String> {
+/// The job file the array's tasks read (`sweptvol sweep --job FILE --shard I/N`), in the shard
+/// folder.
+pub const JOB_FILE: &str = "job.json";
+
+/// The job file of `run`, sweeping its shards into `shard_dir` on `backend`: the inputs made
+/// absolute, the options as the run takes them.
+pub fn job_file(
+    run: &RunOptions,
+    shard_dir: &Path,
+    backend: BackendChoice,
+) -> anyhow::Result<JobFile> {
+    let abs = |p: &Path| -> anyhow::Result<PathBuf> {
         Ok(fs::canonicalize(p)
-            .map_err(|e| InputError::new(p, format!("cannot open it: {e}"), "check the path"))?
-            .to_string_lossy()
-            .into_owned())
+            .map_err(|e| InputError::new(p, format!("cannot open it: {e}"), "check the path"))?)
     };
-    let mut a: Vec<String> = vec![
-        "sweep".into(),
-        "--generator".into(),
-        abs(&opts.generator)?,
-        "--trajectory".into(),
-        abs(&opts.trajectory)?,
-    ];
-    match opts.accuracy {
-        Accuracy::Resolution(n) => a.extend(["--resolution".into(), n.to_string()]),
-        Accuracy::Tolerance(t) => a.extend(["--tolerance".into(), t.to_string()]),
-    }
-    if let Some(d) = opts.overrides.delta {
-        a.extend(["--delta".into(), d.to_string()]);
-    }
-    if let Some(e) = opts.overrides.epsilon {
-        a.extend(["--epsilon".into(), e.to_string()]);
-    }
-    a.extend(["--radii".into(), opts.overrides.radii.name().into()]);
-    a.extend(["--motion".into(), opts.motion.name().into()]);
-    a.extend(["--classify".into(), opts.classify.name().into()]);
-    match opts.name.as_deref() {
-        Some("") => a.push("--bare-names".into()),
-        Some(name) => a.extend(["--name".into(), name.into()]),
-        None => {}
-    }
-    if opts.target_triangles > 0 {
-        a.extend([
-            "--target-triangles".into(),
-            opts.target_triangles.to_string(),
-        ]);
-    }
-    if opts.keep_start_mesh {
-        a.push("--keep-start-mesh".into());
-    }
-    if !opts.also.is_empty() {
-        let names: Vec<&str> = opts.also.iter().map(|f| f.name()).collect();
-        a.extend(["--also".into(), names.join(",")]);
-    }
-    if !opts.check_memory {
-        a.push("--no-memory-check".into());
-    }
-    Ok(a)
+    Ok(JobFile {
+        generator: abs(&run.generator)?,
+        trajectory: abs(&run.trajectory)?,
+        out: shard_dir.to_path_buf(),
+        options: run.job_options(Some(backend)),
+        no_memory_check: !run.check_memory,
+    })
 }
 
 /// Check the job here (inputs, options, outputs: errors before anything is queued), write the
@@ -186,14 +158,15 @@ pub fn submit_prepared(o: &SubmitOptions, job: &pipeline::Prepared) -> anyhow::R
         .stem();
         let _ = fs::remove_file(dir.join(format!("{stem}.{}", slurm::FAILED_SUFFIX)));
     }
-    let mut sweep = sweep_args(&o.run)?;
-    let backend = match o.backend {
-        BackendChoice::Auto => "auto",
-        BackendChoice::Gpu => "gpu",
-        BackendChoice::Cpu => "cpu",
-    };
-    sweep.extend(["--backend".into(), backend.into()]);
-    sweep.extend(["--out".into(), dir.to_string_lossy().into_owned()]);
+    // The tasks read the job from a file: nothing turns the options back into arguments.
+    let job_path = dir.join(JOB_FILE);
+    let file = job_file(&o.run, &dir, o.backend)?;
+    atomic::write_atomic(&job_path, &serde_json::to_vec_pretty(&file)?)?;
+    let sweep: Vec<String> = vec![
+        "sweep".into(),
+        "--job".into(),
+        job_path.to_string_lossy().into_owned(),
+    ];
     let mut mesh: Vec<String> = vec![
         "mesh".into(),
         "--from".into(),

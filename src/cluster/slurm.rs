@@ -25,7 +25,8 @@ fn command_line(binary: &Path, args: &[String]) -> String {
         .join(" ")
 }
 
-/// The array job: task I sweeps shard I/`count` (`sweep_args` hold everything but `--shard`).
+/// The array job: task I sweeps shard I/`count` (`sweep_args` hold everything but `--shard`:
+/// `sweep --job FILE`).
 /// A task that fails other than for its input (exit 2) asks SLURM to requeue it, at most
 /// `retries` times; after the last try it leaves `shard-IIII-of-NNNN.failed` saying why. sbatch
 /// gives the array, job name and log files on its command line ([`sbatch`]).

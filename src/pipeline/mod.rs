@@ -31,11 +31,11 @@ use crate::input::posed::{self, SweepInput};
 use crate::io::exr_depth::{self, ExtraMeta};
 use crate::io::mesh_formats::MeshFormat;
 use crate::io::{atomic, gltf_in, gltf_out, trajectory};
-use crate::job::JobOptions;
+use crate::job::{JobFile, JobOptions};
 use crate::mesh::classify::Method;
 use crate::mesh::Mesh;
 use crate::simplify::SimplifyOptions;
-use crate::sweep::backend::Backend;
+use crate::sweep::backend::{Backend, BackendChoice};
 use crate::sweep::{Cancelled, Observer};
 use crate::voxels::VoxelBits;
 
@@ -96,6 +96,45 @@ impl RunOptions {
             motion: job.motion,
             classify: job.classify,
         }
+    }
+}
+
+impl RunOptions {
+    /// The options of this run as a job asks for them (the accuracy spelled out, so the job
+    /// needs no default): [`RunOptions::of_job`] gives this run back, but for `overwrite`,
+    /// `check_memory` and the paths.
+    pub fn job_options(&self, backend: Option<BackendChoice>) -> JobOptions {
+        let (resolution, tolerance) = match self.accuracy {
+            Accuracy::Resolution(n) => (Some(n), None),
+            Accuracy::Tolerance(t) => (None, Some(t)),
+        };
+        JobOptions {
+            resolution,
+            tolerance,
+            delta: self.overrides.delta,
+            epsilon: self.overrides.epsilon,
+            backend,
+            name: self.name.clone(),
+            target_triangles: (self.target_triangles > 0).then_some(self.target_triangles),
+            keep_start_mesh: self.keep_start_mesh,
+            also: self.also.clone(),
+            motion: self.motion,
+            classify: self.classify,
+            radii: self.overrides.radii,
+        }
+    }
+
+    /// The run a job file describes (it writes to the file's shard folder).
+    pub fn of_job_file(file: &JobFile) -> RunOptions {
+        let mut run = RunOptions::of_job(
+            &file.options,
+            file.generator.clone(),
+            file.trajectory.clone(),
+            file.out.clone(),
+            Accuracy::DEFAULT,
+        );
+        run.check_memory = !file.no_memory_check;
+        run
     }
 }
 
