@@ -1,8 +1,11 @@
 //! sweptvol: conservative swept volumes of triangle meshes along discrete trajectories.
 //!
-//! The modules follow the data, one way (docs/design.md has the arguments):
+//! The modules follow the data, one way (docs/design.md has the arguments; tests/layout.rs
+//! fails on any import circle, between files or top-level modules):
 //!
-//! - [`io`]: the only code that touches files: glTF and CSV in, EXR, glTF, STL, PLY, OBJ out.
+//! - [`io`]: the file formats, glTF and CSV in, EXR, glTF, STL, PLY, OBJ out, and atomic
+//!   writes. (Not the only code that touches files: `pipeline` checks outputs and writes shard
+//!   data, `cluster` its scripts, `watch` its status files, lock and scans.)
 //! - [`input`]: parts and poses become the sweep's input in grid units, with the voxel grid, the
 //!   parameters (δ, ε), the f32 rounding term ρ and the memory estimate.
 //! - [`sweep`]: the δ-offset of every posed triangle ray cast into six depth images, on the GPU
@@ -21,7 +24,7 @@
 //! - [`surface`]: the mesh stage as one function, images in, mesh out, for every caller.
 //! - [`job`]: a job's options as one typed value, job.json's schema and the command line's.
 //! - [`pipeline`]: one run, files in to files out, with its named outputs and its report;
-//!   [`watch`] and `main.rs` are its shells.
+//!   [`watch`] and `main.rs` are its shells, and [`cluster`] runs it on SLURM in shards.
 //! - [`verify`]: an independent certificate for any swept-volume mesh.
 
 pub mod cluster;

@@ -225,7 +225,7 @@ pub fn submit_prepared(o: &SubmitOptions, job: &pipeline::Prepared) -> anyhow::R
         }
     };
     let submission = Submission {
-        at: crate::watch::status::unix_now(),
+        at: crate::io::clock::unix_now(),
         shards: o.shards,
         swept: missing,
         sweep_job,

@@ -133,3 +133,9 @@ impl Trajectory {
         }
     }
 }
+
+/// A world pose of a part and the CSV line of the row that gives it (None: the part stands
+/// where the glTF puts it).
+pub(crate) type LinedPose = (DMat4, Option<u64>);
+/// A part (index into the generator's parts), its poses in order, and whether no row names it.
+pub(crate) type PartPoses = (usize, Vec<LinedPose>, bool);

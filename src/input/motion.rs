@@ -17,8 +17,8 @@ use glam::{DMat3, DMat4, DQuat, DVec3};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{num, InputError, OptionError, OptionKey};
+use crate::input::model::PartPoses;
 use crate::input::model::{Generator, Trajectory};
-use crate::input::posed::PartPoses;
 
 /// What moves the part between the rows of its trajectory.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]

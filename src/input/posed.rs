@@ -10,7 +10,7 @@ use serde::Serialize;
 
 use crate::error::{num, InputError, OptionError, OptionKey};
 use crate::input::grid::{fit_grid, Accuracy, Grid, Overrides, Params};
-use crate::input::model::{Generator, Part, Trajectory};
+use crate::input::model::{Generator, LinedPose, Part, Trajectory};
 use crate::input::motion::{self, Motion, MotionReport, MU_VOXELS};
 use crate::input::outline;
 use crate::input::poses::PoseSource;
@@ -31,12 +31,6 @@ pub const MAX_OUTPUT_ROUNDING_VOXELS: f64 = 0.01;
 const MAX_WORLD_COORDINATE: f64 = f32::MAX as f64 / 4.0;
 /// Half the smallest f32 subnormal: the absolute rounding error of f32 near zero.
 const F32_ABS_ROUNDING: f64 = 7.006_492_321_624_085e-46;
-
-/// A world pose of a part and the CSV line of the row that gives it (None: the part stands
-/// where the glTF puts it).
-pub(crate) type LinedPose = (DMat4, Option<u64>);
-/// A part (index into the generator's parts), its poses in order, and whether no row names it.
-pub(crate) type PartPoses = (usize, Vec<LinedPose>, bool);
 
 /// A part as the sweep sees it: its triangles and the poses that move it.
 #[derive(Clone, Debug, Serialize)]

@@ -1,6 +1,8 @@
-//! The only code that touches files: glTF in, trajectory CSV in, depth images out.
+//! The file formats (glTF and the trajectory CSV in; depth images, meshes out), atomic writes
+//! and the clock files record.
 
 pub mod atomic;
+pub mod clock;
 pub mod exr_depth;
 pub mod gltf_in;
 pub mod gltf_out;

@@ -5,96 +5,19 @@ use std::collections::HashMap;
 
 use glam::DVec3;
 
-use super::band::Proximity;
-use super::between::Between;
 use super::intersect::{bounds, bounds_meet, boxes_meet, conflict, TriangleHash};
 use super::quadric::{cheapest, Quadric};
 use super::queue::{bucket, Candidate, Queue};
-use super::region::Region;
+// Scratch, IdSet, Plan and Reject live with the checks that make them (region.rs), which
+// import nothing from here.
+pub(super) use super::region::{IdSet, Plan, Region, Reject, Scratch};
 use super::{regrow, SimplifyStats, HASH_CELL};
-use crate::mesh::classify::Classifier;
 use crate::mesh::Mesh;
-
-/// What a worker thread keeps across checks.
-pub(super) struct Scratch<'c> {
-    /// Distance memo, sized for the voxels near the surface: about two per start triangle.
-    pub(super) prox: Proximity<'c>,
-    pub(super) seen: IdSet,
-    pub(super) between: Between,
-}
-
-impl<'c> Scratch<'c> {
-    pub(super) fn new(cls: &'c Classifier, triangles: usize) -> Self {
-        Scratch {
-            prox: Proximity::with_capacity(cls, 2 * triangles),
-            seen: IdSet::new(triangles),
-            between: Between::default(),
-        }
-    }
-}
-
-/// A set of triangle ids, one bit each (2 MB for 16 M triangles), empty between uses.
-pub(super) struct IdSet(Vec<u64>);
-
-impl IdSet {
-    pub(super) fn new(ids: usize) -> Self {
-        IdSet(vec![0; ids.div_ceil(64)])
-    }
-
-    /// Drops every id from `ids` that an earlier one repeats, keeping the order.
-    pub(super) fn keep_first(&mut self, ids: &mut Vec<u32>) {
-        let bits = &mut self.0;
-        ids.retain(|&u| {
-            let (word, bit) = (u as usize / 64, 1u64 << (u % 64));
-            let first = bits[word] & bit == 0;
-            bits[word] |= bit;
-            first
-        });
-        for &u in ids.iter() {
-            bits[u as usize / 64] &= !(1u64 << (u % 64));
-        }
-    }
-}
-
-/// A collapse that passed [`Region::check`]: b merges into a at v.
-pub(super) struct Plan {
-    pub(super) a: usize,
-    pub(super) b: usize,
-    pub(super) v: DVec3,
-    /// The two triangles on the edge (they disappear).
-    pub(super) shared: Vec<u32>,
-    /// The surviving triangles around the edge that move, with their new positions (those that
-    /// stay keep their hash cells and cannot meet anything new).
-    pub(super) changed: Vec<(u32, [DVec3; 3])>,
-    /// The same with their vertex ids after the collapse.
-    pub(super) new: Vec<([u32; 3], [DVec3; 3])>,
-    /// a's neighbours after the collapse, with the cost of collapsing the edge to each (read
-    /// before the batch: no other collapse of the batch moves them or a).
-    pub(super) fresh: Vec<(u32, f64)>,
-    /// The triangles around the edge before the collapse, sorted.
-    pub(super) around: Vec<u32>,
-    /// The surviving triangles around the edge that stay where they are (ids after the
-    /// collapse, places).
-    pub(super) unchanged: Vec<([u32; 3], [DVec3; 3])>,
-    /// The collapse keeps the surface's point set ([`Region::keeps_surface`]).
-    pub(super) in_plane: bool,
-}
 
 /// The triangles a committed plan moved, as after its collapse (ids, places), and their box.
 pub(super) struct Moved {
     pub(super) fan: (DVec3, DVec3),
     pub(super) tris: Vec<([u32; 3], [DVec3; 3])>,
-}
-
-#[derive(Clone, Copy, Debug)]
-pub(super) enum Reject {
-    /// A block's pass would move the surface onto its box's faces (`blocked`): left to the seams.
-    Border,
-    Topology,
-    Flip,
-    Band,
-    Sweep,
-    Intersection,
 }
 
 pub(super) struct State {

@@ -17,9 +17,10 @@ use anyhow::{bail, Context as _};
 use notify_debouncer_mini::{new_debouncer, notify::RecursiveMode};
 
 use super::detector::{Action, Detector};
+use super::executor::{Context, Executor, QueuedJob};
 use super::lock;
 use super::protocol::JobId;
-use super::runner::{self, Context, QueuedJob};
+use super::runner;
 use super::scan;
 use super::status::StatusFile;
 use crate::input::grid::Accuracy;
@@ -44,27 +45,6 @@ pub struct WatchOptions {
     pub default_accuracy: Accuracy,
     pub max_input_bytes: u64,
     pub executor: Executor,
-}
-
-/// Where the daemon's jobs run.
-#[derive(Clone, Debug, Default)]
-pub enum Executor {
-    /// Here, on the daemon's backend.
-    #[default]
-    Local,
-    /// On a SLURM cluster, each job as `cluster submit` would queue it; the watched folder
-    /// must be on a filesystem the nodes share.
-    Slurm(SlurmExecutor),
-}
-
-#[derive(Clone, Debug)]
-pub struct SlurmExecutor {
-    pub shards: u32,
-    /// The sweptvol the nodes run.
-    pub binary: PathBuf,
-    /// sbatch options for both jobs of every job.
-    pub sbatch: Vec<String>,
-    pub retries: u32,
 }
 
 /// The work queue between the loop and the workers.

@@ -6,6 +6,7 @@
 
 pub mod daemon;
 pub mod detector;
+pub mod executor;
 pub mod lock;
 pub mod on_cluster;
 pub mod protocol;
@@ -13,4 +14,5 @@ pub mod runner;
 pub mod scan;
 pub mod status;
 
-pub use daemon::{run, Executor, SlurmExecutor, WatchOptions};
+pub use daemon::{run, WatchOptions};
+pub use executor::{Executor, SlurmExecutor};

@@ -8,9 +8,8 @@ use std::time::{Duration, Instant};
 
 use anyhow::bail;
 
-use super::daemon::SlurmExecutor;
+use super::executor::{Context, Finished, QueuedJob, SlurmExecutor};
 use super::protocol::{ClusterProgress, JobId};
-use super::runner::{Context, Finished, QueuedJob};
 use crate::cluster::{self, slurm, SubmitOptions};
 use crate::pipeline::Prepared;
 use crate::sweep::backend::BackendChoice;

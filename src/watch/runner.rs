@@ -6,15 +6,13 @@ use std::fs;
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Arc;
 
-use super::daemon::Executor;
+use super::executor::{Context, Executor, Finished, QueuedJob};
 use super::on_cluster;
 use super::protocol::{self, ErrorInfo, Fingerprint, JobId, JobOptions, State};
 use super::status::StatusFile;
 use crate::error::{InputError, OptionError, OptionKey};
-use crate::input::grid::Accuracy;
-use crate::pipeline::{self, Report};
+use crate::pipeline;
 use crate::sweep::backend::{Backend, BackendChoice};
 use crate::sweep::{Cancelled, Observer};
 
@@ -38,28 +36,6 @@ const STAGE_PROGRESS: [(&str, f64, &str); 5] = [
     ),
     ("write", 0.97, "writing the outputs"),
 ];
-
-/// What every job shares.
-pub struct Context<'a> {
-    /// The watched folder, canonical.
-    pub root: &'a Path,
-    /// Acquired once at start (one GPU device for the daemon's life).
-    pub backend: &'a Backend,
-    pub default_accuracy: Accuracy,
-    pub max_input_bytes: u64,
-    pub shutdown: &'a AtomicBool,
-    /// Where jobs run: here on `backend`, or on SLURM.
-    pub executor: &'a Executor,
-    /// The daemon's --backend, for jobs that run elsewhere.
-    pub backend_choice: BackendChoice,
-}
-
-/// A job handed to a worker; its status file already says `queued`.
-pub struct QueuedJob {
-    pub id: JobId,
-    pub inputs: Fingerprint,
-    pub status: Arc<StatusFile>,
-}
 
 /// Run `job` to an end and record it. Returns the state written (`Queued` after a shutdown).
 pub fn run(ctx: &Context, job: &QueuedJob) -> State {
@@ -276,28 +252,6 @@ fn execute(ctx: &Context, job: &QueuedJob, observer: &JobObserver) -> anyhow::Re
         },
     };
     pipeline::execute(&prepared, backend, observer).map(|r| Finished::of(&r))
-}
-
-/// What the status file records of a finished job.
-pub struct Finished {
-    /// Output paths.
-    pub outputs: Vec<PathBuf>,
-    /// The report's timings.
-    pub stages: Option<serde_json::Value>,
-    pub message: String,
-}
-
-impl Finished {
-    pub fn of(report: &Report) -> Finished {
-        Finished {
-            outputs: report.outputs.clone(),
-            stages: serde_json::to_value(&report.timings).ok(),
-            message: format!(
-                "swept {} posed triangles on {}; {} triangles in the mesh",
-                report.counts.posed_triangles, report.backend, report.mesh.triangles_final
-            ),
-        }
-    }
 }
 
 /// A bad option value, worded for where it came from: job.json's keys (`"delta"`, the key

@@ -3,7 +3,7 @@
 
 use std::path::PathBuf;
 use std::sync::Mutex;
-use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+use std::time::{Duration, Instant};
 
 use super::protocol::{ErrorInfo, Fingerprint, State, Status, Timings};
 use crate::io::atomic;
@@ -11,12 +11,7 @@ use crate::io::atomic;
 /// Progress is written at most this often.
 const PROGRESS_INTERVAL: Duration = Duration::from_millis(250);
 
-pub fn unix_now() -> f64 {
-    SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .map(|d| d.as_secs_f64())
-        .unwrap_or(0.0)
-}
+pub use crate::io::clock::unix_now;
 
 /// Writes one job's status. Shared by the threads of a job; the lock also keeps two writes
 /// from racing on the same temporary name.
