@@ -399,3 +399,31 @@ fn outputs_are_the_same_on_one_thread_and_on_two() {
         assert!(a == b, "{name} differs between one thread and two");
     }
 }
+
+/// Issue 27: report.json reads back as the library's typed `Report` (the SLURM path reads the
+/// merge's report so, not as untyped JSON), and writes back the same JSON.
+#[test]
+fn a_report_reads_back_as_the_typed_report() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let g = write_gltf(d, "part.gltf", &["a", "b"], None);
+    let t = write(
+        d,
+        "part.csv",
+        "node,tx,ty,tz,qw,qx,qy,qz\na,0,0,0,1,0,0,0\na,0.2,0,0,1,0,0,0\n",
+    );
+    let out = d.join("out");
+    let o = sweptvol(&run_args(
+        &g,
+        &t,
+        &out,
+        &["--resolution", "24", "--also", "obj"],
+    ));
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let text = fs::read_to_string(out.join("part.report.json")).unwrap();
+    let report: sweptvol::pipeline::Report = serde_json::from_str(&text).unwrap();
+    let again = serde_json::to_value(&report).unwrap();
+    let written: serde_json::Value = serde_json::from_str(&text).unwrap();
+    assert_eq!(again, written);
+    assert_eq!(report.inputs.static_parts, ["b"]);
+}

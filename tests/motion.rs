@@ -148,7 +148,7 @@ fn a_cube_pushed_ten_units_fills_the_box_between() {
     ];
     let (input, _, mesh) = run(&g, &poses, 96, Motion::Screw);
     let m = &input.motion;
-    assert_eq!((m.model, m.intervals), ("screw", 1));
+    assert_eq!((m.model.as_str(), m.intervals), ("screw", 1));
     assert!((m.max_path - 10.0).abs() < 1e-6, "{m:?}");
     assert!(
         m.mu > 0.0 && m.poses_rendered as f64 >= 10.0 / (2.0 * m.mu),

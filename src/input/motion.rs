@@ -323,10 +323,10 @@ pub fn motion_box(generator: &Generator, intervals: &[Interval], extent: f64) ->
 }
 
 /// What the report says of the motion.
-#[derive(Clone, Debug, Default, Serialize)]
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
 pub struct MotionReport {
     /// "screw" or "discrete".
-    pub model: &'static str,
+    pub model: String,
     /// Budget of the sub-pose spacing: every point of the motion is within μ of a rendered
     /// sub-pose, world units (0 for discrete motion).
     pub mu: f64,
@@ -343,7 +343,7 @@ pub struct MotionReport {
     pub max_steps_at: Option<MotionPlace>,
 }
 
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct MotionPlace {
     pub part: String,
     pub lines: [u64; 2],
@@ -361,7 +361,7 @@ pub fn sub_pose_steps(
     mu: f64,
 ) -> Result<(Vec<u64>, MotionReport), OptionError> {
     let mut report = MotionReport {
-        model: Motion::Screw.name(),
+        model: Motion::Screw.name().into(),
         mu,
         intervals: intervals.len() as u64,
         ..Default::default()
@@ -402,7 +402,7 @@ pub fn sub_pose_steps(
 /// The report of a discrete sweep of `poses` poses.
 pub fn discrete_report(poses: u64) -> MotionReport {
     MotionReport {
-        model: Motion::Discrete.name(),
+        model: Motion::Discrete.name().into(),
         poses_rendered: poses,
         ..Default::default()
     }

@@ -33,7 +33,7 @@ const MAX_WORLD_COORDINATE: f64 = f32::MAX as f64 / 4.0;
 const F32_ABS_ROUNDING: f64 = 7.006_492_321_624_085e-46;
 
 /// A part as the sweep sees it: its triangles and the poses that move it.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
 pub struct PartRange {
     pub name: String,
     /// First triangle in [`SweepInput::triangles`], and how many.
@@ -437,7 +437,7 @@ pub fn build(
     } else {
         motion::sub_pose_steps(generator, &assigned, &intervals, mu_voxels * grid.h)?
     };
-    motion_report.model = motion.name();
+    motion_report.model = motion.name().into();
     let to_grid =
         DMat4::from_scale(DVec3::splat(1.0 / grid.h)) * DMat4::from_translation(-grid.origin());
 

@@ -158,7 +158,7 @@ impl Mesh {
 }
 
 /// Counts of what keeps a mesh from being a closed, oriented 2-manifold ([`Mesh::manifold_defects`]).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, serde::Deserialize)]
 pub struct ManifoldDefects {
     /// Edges not used exactly once in each direction (open, four-face or misoriented edges).
     pub edges: u64,

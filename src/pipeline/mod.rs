@@ -357,8 +357,9 @@ pub fn finish(job: &Prepared, swept: Swept, observer: &dyn Observer) -> anyhow::
         } else {
             Method::Axes
         }
-        .name(),
-        asked: opts.classify.name(),
+        .name()
+        .into(),
+        asked: opts.classify.name().into(),
         reason: job.classify.reason.clone(),
         reach_voxels: surface.reach_voxels,
         flooded_voxels: surface.flooded_voxels,
@@ -464,7 +465,8 @@ pub fn finish(job: &Prepared, swept: Swept, observer: &dyn Observer) -> anyhow::
             HAUSDORFF_SCOPE_FLOOD
         } else {
             HAUSDORFF_SCOPE
-        },
+        }
+        .into(),
         // Every mesh point is within `outside` of an outside voxel's centre, which is farther
         // than δ from every rendered pose.
         clearance: input.params.delta - band.tolerance.outside * h - output_rounding,

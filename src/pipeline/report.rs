@@ -3,7 +3,7 @@
 
 use std::path::PathBuf;
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::input::grid::Grid;
 use crate::input::motion::MotionReport;
@@ -18,12 +18,12 @@ pub(super) const HAUSDORFF_SCOPE: &str = "wherever the swept volume's concavitie
 pub(super) const HAUSDORFF_SCOPE_FLOOD: &str = "everywhere: the flood from outside opens every concavity it can reach without crossing the rendered offset, so no pocket is filled (voids sealed inside the swept volume are filled, and have no surface)";
 
 /// How the voxels were classified, and why (`--classify`).
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct ClassificationReport {
     /// `flood` (condition ⋆ less the flood from outside) or `axes` (condition ⋆ alone).
-    pub method: &'static str,
+    pub method: String,
     /// What was asked: `auto`, `flood` or `axes`.
-    pub asked: &'static str,
+    pub asked: String,
     pub reason: String,
     /// Voxels whose centres the rendered offset covers (flood only).
     pub reach_voxels: Option<u64>,
@@ -35,7 +35,7 @@ pub struct ClassificationReport {
 }
 
 /// The report written beside the depth images (`<name>.report.json`).
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Report {
     pub sweptvol_version: String,
     pub inputs: InputsReport,
@@ -57,7 +57,7 @@ pub struct Report {
 }
 
 /// The output mesh. Distances in world units.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct MeshReport {
     pub file: PathBuf,
     /// Triangles of the voxel boundary (the paper's T_start) and of the output (T_final).
@@ -85,7 +85,7 @@ pub struct MeshReport {
     /// 2ρ + output rounding (μ: the motion budget, 0 for discrete motion).
     pub hausdorff_bound: f64,
     /// Where `hausdorff_bound` holds, in words (it is not a global bound).
-    pub hausdorff_bound_scope: &'static str,
+    pub hausdorff_bound_scope: String,
     /// Every point of the mesh is at least this far outside the swept volume (of the whole
     /// motion for screw motion: μ is rendered beyond δ and spent again on the motion between
     /// sub-poses): δ - √3h/2 - ε - output rounding.
@@ -94,7 +94,7 @@ pub struct MeshReport {
     pub output_rounding: f64,
 }
 
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct InputsReport {
     pub generator: PathBuf,
     pub trajectory: PathBuf,
@@ -104,7 +104,7 @@ pub struct InputsReport {
 }
 
 /// Distances in world units.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct ParametersReport {
     /// The rule δ and ε were taken from where not given: "exact" or "paper".
     pub radii: crate::input::grid::Radii,
@@ -126,7 +126,7 @@ pub struct ParametersReport {
     pub sweep_radius: f64,
 }
 
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct CountsReport {
     pub triangles: u64,
     pub poses: u64,
@@ -135,7 +135,7 @@ pub struct CountsReport {
     pub hit_pixels: [u64; 3],
 }
 
-#[derive(Clone, Debug, Default, Serialize)]
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
 pub struct TimingsReport {
     pub read_inputs: f64,
     pub setup: f64,
@@ -150,7 +150,7 @@ pub struct TimingsReport {
     pub posed_triangles_per_second: f64,
 }
 
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct DepthImagesReport {
     pub layout: String,
     pub empty_pixels: String,

@@ -119,7 +119,7 @@ impl SimplifyOptions {
 }
 
 /// Counts of what happened, for the report and the tests.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct SimplifyStats {
     pub collapses: u64,
     /// Collapses that kept the surface's point set (flat or straight-crease vertices merged

@@ -17,7 +17,7 @@ use anyhow::{bail, Context as _};
 use notify_debouncer_mini::{new_debouncer, notify::RecursiveMode};
 
 use super::detector::{Action, Detector};
-use super::executor::{Context, Executor, QueuedJob};
+use super::executor::{Context, Executor, QueuedJob, Runs};
 use super::lock;
 use super::protocol::JobId;
 use super::runner;
@@ -72,20 +72,28 @@ pub fn run(opts: &WatchOptions) -> anyhow::Result<()> {
         signal_hook::flag::register(signal, shutdown.clone())?;
     }
 
+    // The one place the daemon's backend is settled: acquired here, or none on SLURM (the
+    // nodes pick their own; this machine only waits).
     let backend = match &opts.executor {
-        // The nodes pick their own backend; this machine only waits.
-        Executor::Slurm(s) => Backend::Cpu {
-            reason: format!("jobs run on SLURM in {} shards each", s.shards),
-        },
-        Executor::Local => Backend::acquire(opts.backend)?,
+        Executor::Slurm(_) => None,
+        Executor::Local => Some(Backend::acquire(opts.backend)?),
     };
-    if let (Backend::Cpu { reason }, Executor::Local) = (&backend, &opts.executor) {
+    if let Some(Backend::Cpu { reason }) = &backend {
         if opts.backend == BackendChoice::Auto {
             tracing::warn!("{reason}");
         }
     }
-    let workers = match backend {
-        Backend::Gpu(_) if opts.jobs > 1 => {
+    let runs = match (&backend, &opts.executor) {
+        (_, Executor::Slurm(s)) => Runs::Slurm(s),
+        (Some(b), Executor::Local) => Runs::Here(b),
+        (None, Executor::Local) => unreachable!("a local daemon acquired its backend"),
+    };
+    let place = match runs {
+        Runs::Here(b) => b.describe(),
+        Runs::Slurm(s) => format!("SLURM in {} shards each", s.shards),
+    };
+    let workers = match runs {
+        Runs::Here(Backend::Gpu(_)) if opts.jobs > 1 => {
             tracing::warn!(
                 "--jobs {} ignored: jobs share one GPU, one at a time",
                 opts.jobs
@@ -97,7 +105,7 @@ pub fn run(opts: &WatchOptions) -> anyhow::Result<()> {
     tracing::info!(
         "watching {} on {} ({workers} job{} at a time){}",
         root.display(),
-        backend.describe(),
+        place,
         if workers == 1 { "" } else { "s" },
         if opts.once { "; --once" } else { "" }
     );
@@ -113,11 +121,10 @@ pub fn run(opts: &WatchOptions) -> anyhow::Result<()> {
     let (done_tx, done) = mpsc::channel::<JobId>();
     let ctx = Context {
         root: &root,
-        backend: &backend,
+        runs,
         default_accuracy: opts.default_accuracy,
         max_input_bytes: opts.max_input_bytes,
         shutdown: &shutdown,
-        executor: &opts.executor,
         backend_choice: opts.backend,
     };
     let start = Instant::now();

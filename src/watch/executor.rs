@@ -1,4 +1,5 @@
-//! What the daemon, the runner and the SLURM path share: where jobs run ([`Executor`]), what
+//! What the daemon, the runner and the SLURM path share: where jobs may run ([`Executor`]) and,
+//! settled once, where they do ([`Runs`]), what
 //! every job sees ([`Context`]), a job handed to a worker ([`QueuedJob`]) and what a finished
 //! one records ([`Finished`]). It imports none of them, so they import no one another.
 
@@ -33,18 +34,24 @@ pub struct SlurmExecutor {
     pub retries: u32,
 }
 
+/// Where the daemon's jobs run, settled once when it starts: here, on the backend it acquired
+/// (one GPU device for the daemon's life), or on SLURM, where the nodes pick their own and
+/// nothing is acquired here.
+#[derive(Clone, Copy)]
+pub enum Runs<'a> {
+    Here(&'a Backend),
+    Slurm(&'a SlurmExecutor),
+}
+
 /// What every job shares.
 pub struct Context<'a> {
     /// The watched folder, canonical.
     pub root: &'a Path,
-    /// Acquired once at start (one GPU device for the daemon's life).
-    pub backend: &'a Backend,
+    pub runs: Runs<'a>,
     pub default_accuracy: Accuracy,
     pub max_input_bytes: u64,
     pub shutdown: &'a AtomicBool,
-    /// Where jobs run: here on `backend`, or on SLURM.
-    pub executor: &'a Executor,
-    /// The daemon's --backend, for jobs that run elsewhere.
+    /// The daemon's --backend, for jobs that run on SLURM.
     pub backend_choice: BackendChoice,
 }
 

@@ -6,12 +6,12 @@
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use anyhow::bail;
+use anyhow::{bail, Context as _};
 
 use super::executor::{Context, Finished, QueuedJob, SlurmExecutor};
 use super::protocol::{ClusterProgress, JobId};
 use crate::cluster::{self, slurm, SubmitOptions};
-use crate::pipeline::Prepared;
+use crate::pipeline::{Prepared, Report};
 use crate::sweep::backend::BackendChoice;
 use crate::sweep::{Cancelled, Observer};
 
@@ -113,26 +113,15 @@ pub fn run(
                 );
             }
             // The merge wrote the outputs `prepare` named, the report among them.
-            let bytes = std::fs::read(&prepared.outputs.report)?;
-            let report: serde_json::Value = serde_json::from_slice(&bytes)?;
-            let outputs = report["outputs"]
-                .as_array()
-                .map(|a| {
-                    a.iter()
-                        .filter_map(|p| p.as_str().map(PathBuf::from))
-                        .collect()
-                })
-                .unwrap_or_default();
-            return Ok(Finished {
-                outputs,
-                stages: Some(report["timings"].clone()),
-                message: format!(
-                    "swept {} posed triangles on SLURM ({}); {} triangles in the mesh",
-                    report["counts"]["posed_triangles"],
-                    report["backend"].as_str().unwrap_or(""),
-                    report["mesh"]["triangles_final"]
-                ),
-            });
+            let path = &prepared.outputs.report;
+            let report: Report = serde_json::from_slice(&std::fs::read(path)?)
+                .with_context(|| format!("the merge's report {} is unreadable", path.display()))?;
+            let mut finished = Finished::of(&report);
+            finished.message = format!(
+                "swept {} posed triangles on SLURM ({}); {} triangles in the mesh",
+                report.counts.posed_triangles, report.backend, report.mesh.triangles_final
+            );
+            return Ok(finished);
         }
         if let Some((i, why)) = st.failed.first() {
             let _ = slurm::cancel(&ids);

@@ -7,7 +7,7 @@ use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 
-use super::executor::{Context, Executor, Finished, QueuedJob};
+use super::executor::{Context, Finished, QueuedJob, Runs};
 use super::on_cluster;
 use super::protocol::{self, ErrorInfo, Fingerprint, JobId, JobOptions, State};
 use super::status::StatusFile;
@@ -222,21 +222,24 @@ fn execute(ctx: &Context, job: &QueuedJob, observer: &JobObserver) -> anyhow::Re
     );
     remove_stale_temporaries(&opts, &job.id.status_path(root))?;
     let prepared = pipeline::prepare(&opts).map_err(|e| in_job_terms(e, job_json.as_deref()))?;
-    if let Executor::Slurm(slurm) = ctx.executor {
-        let backend = options.backend.unwrap_or(ctx.backend_choice);
-        return on_cluster::run(ctx, job, slurm, &prepared, backend, observer);
-    }
+    let here = match ctx.runs {
+        Runs::Slurm(slurm) => {
+            let backend = options.backend.unwrap_or(ctx.backend_choice);
+            return on_cluster::run(ctx, job, slurm, &prepared, backend, observer);
+        }
+        Runs::Here(backend) => backend,
+    };
     let cpu;
     let backend = match options.backend {
-        None | Some(BackendChoice::Auto) => ctx.backend,
+        None | Some(BackendChoice::Auto) => here,
         Some(BackendChoice::Cpu) => {
             cpu = Backend::Cpu {
                 reason: "\"backend\": \"cpu\" in job.json".into(),
             };
             &cpu
         }
-        Some(BackendChoice::Gpu) => match ctx.backend {
-            Backend::Gpu(_) => ctx.backend,
+        Some(BackendChoice::Gpu) => match here {
+            Backend::Gpu(_) => here,
             Backend::Cpu { reason } => {
                 let path = job_json.clone().unwrap_or_default();
                 return Err(InputError::new(
