@@ -1,7 +1,7 @@
 //! What the daemon, the runner and the SLURM path share: where jobs may run ([`Executor`]) and,
-//! settled once, where they do ([`Runs`]), what
-//! every job sees ([`Context`]), a job handed to a worker ([`QueuedJob`]) and what a finished
-//! one records ([`Finished`]). It imports none of them, so they import no one another.
+//! settled once at start, where they do ([`Runs`]); what every job sees ([`Context`]); a job
+//! handed to a worker ([`QueuedJob`]); what a finished one records ([`Finished`]). It imports
+//! none of those three modules, so none of them imports another's types.
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
