@@ -24,19 +24,18 @@ use serde::{Deserialize, Serialize};
 use super::{build, output_paths, prepare, Prepared, RunOptions, Swept};
 use crate::depth::{self, DepthImages};
 use crate::error::InputError;
-use crate::input::grid::{Accuracy, Grid, Overrides};
-use crate::input::motion::Motion;
+use crate::input::grid::{Accuracy, Grid};
 use crate::io::atomic;
-use crate::io::mesh_formats::MeshFormat;
-use crate::mesh::classify::Method;
+use crate::job::JobOptions;
 use crate::sweep::backend::Backend;
 use crate::sweep::Observer;
 use crate::voxels::VoxelBits;
 
 /// The manifest's `format`: what a reader checks first.
 const FORMAT: &str = "sweptvol-shard";
-/// Version of the manifest and data layout; a merge refuses any other.
-const VERSION: u32 = 1;
+/// Version of the manifest and data layout; a merge refuses any other (2: the job's options as
+/// `JobOptions`).
+const VERSION: u32 = 2;
 /// First bytes of a shard's data file.
 const MAGIC: &[u8; 8] = b"SVSHARD1";
 
@@ -84,14 +83,9 @@ pub struct JobSpec {
     pub generator_hash: String,
     pub trajectory: PathBuf,
     pub trajectory_hash: String,
-    pub name: Option<String>,
-    pub accuracy: Accuracy,
-    pub overrides: Overrides,
-    pub motion: Motion,
-    pub classify: Method,
-    pub target_triangles: usize,
-    pub keep_start_mesh: bool,
-    pub also: Vec<MeshFormat>,
+    /// The job's options, the typed value job.json and the command line share (the accuracy
+    /// spelled out; no backend: each shard records its own).
+    pub options: JobOptions,
     pub check_memory: bool,
 }
 
@@ -109,35 +103,23 @@ impl JobSpec {
             trajectory_hash: hash_file(&trajectory)?,
             generator,
             trajectory,
-            name: opts.name.clone(),
-            accuracy: opts.accuracy,
-            overrides: opts.overrides,
-            motion: opts.motion,
-            classify: opts.classify,
-            target_triangles: opts.target_triangles,
-            keep_start_mesh: opts.keep_start_mesh,
-            also: opts.also.clone(),
+            options: opts.job_options(None),
             check_memory: opts.check_memory,
         })
     }
 
     /// The run these shards make up, writing to `out_dir`.
     pub fn run_options(&self, out_dir: PathBuf, overwrite: bool) -> RunOptions {
-        RunOptions {
-            generator: self.generator.clone(),
-            trajectory: self.trajectory.clone(),
+        let mut run = RunOptions::of_job(
+            &self.options,
+            self.generator.clone(),
+            self.trajectory.clone(),
             out_dir,
-            name: self.name.clone(),
-            accuracy: self.accuracy,
-            overrides: self.overrides,
-            overwrite,
-            target_triangles: self.target_triangles,
-            keep_start_mesh: self.keep_start_mesh,
-            also: self.also.clone(),
-            check_memory: self.check_memory,
-            motion: self.motion,
-            classify: self.classify,
-        }
+            Accuracy::DEFAULT, // unused: the options spell the accuracy out
+        );
+        run.overwrite = overwrite;
+        run.check_memory = self.check_memory;
+        run
     }
 
     /// The options, as JSON, in which `other` differs: `accuracy {"resolution":40} where
@@ -171,11 +153,20 @@ impl JobSpec {
     }
 }
 
+/// The spec's fields as JSON, the options' own fields among them (`resolution`, not `options`).
 fn json_fields(spec: &JobSpec) -> BTreeMap<String, serde_json::Value> {
-    match serde_json::to_value(spec) {
-        Ok(serde_json::Value::Object(m)) => m.into_iter().collect(),
-        _ => BTreeMap::new(),
+    let mut out = BTreeMap::new();
+    if let Ok(serde_json::Value::Object(m)) = serde_json::to_value(spec) {
+        for (k, v) in m {
+            match v {
+                serde_json::Value::Object(options) if k == "options" => out.extend(options),
+                v => {
+                    out.insert(k, v);
+                }
+            }
+        }
     }
+    out
 }
 
 /// What a finished shard wrote: its job, which poses it swept, and its data file.
