@@ -14,8 +14,9 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use glam::{DQuat, DVec3, Vec3};
-use sweptvol::input::grid::{Accuracy, Overrides};
+use sweptvol::input::grid::Accuracy;
 use sweptvol::input::motion::Motion;
+use sweptvol::job::JobOptions;
 use sweptvol::pipeline::{self, RunOptions};
 use sweptvol::sweep::backend::{Backend, BackendChoice};
 use sweptvol::sweep::Silent;
@@ -147,22 +148,20 @@ fn main() -> anyhow::Result<()> {
         }
         std::fs::write(&csv, text)?;
         let t0 = Instant::now();
-        let opts = RunOptions {
-            generator: bunny.clone(),
-            trajectory: csv.clone(),
-            out_dir: dir.clone(),
-            name: None,
-            accuracy: Accuracy::Resolution(resolution),
-            overrides: Overrides::default(),
-            overwrite: true,
-            target_triangles: 0,
-            keep_start_mesh: false,
-            also: Vec::new(),
-            check_memory: true,
+        let job = JobOptions {
+            resolution: Some(resolution),
             // verify certifies the listed poses: the benchmark's run renders just those.
             motion: Motion::Discrete,
-            classify: Default::default(),
+            ..JobOptions::default()
         };
+        let mut opts = RunOptions::of_job(
+            &job,
+            bunny.clone(),
+            csv.clone(),
+            dir.clone(),
+            Accuracy::DEFAULT,
+        );
+        opts.overwrite = true;
         let job = pipeline::prepare(&opts)?;
         let report = pipeline::execute(&job, &Backend::acquire(BackendChoice::Cpu)?, &Silent)?;
         eprintln!(

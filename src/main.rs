@@ -347,7 +347,7 @@ fn run_options(args: &RunArgs) -> anyhow::Result<(RunOptions, Option<BackendChoi
         _ => unreachable!("clap requires --generator, --trajectory and --out without --job"),
     };
     if args.bare_names {
-        run.name = Some(String::new());
+        run.job.name = Some(String::new());
     }
     run.overwrite = args.overwrite;
     run.check_memory &= !args.no_memory_check;

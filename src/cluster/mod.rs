@@ -174,7 +174,7 @@ pub fn submit_prepared(o: &SubmitOptions, job: &pipeline::Prepared) -> anyhow::R
     ];
     mesh.extend(["--out".into(), out_dir.to_string_lossy().into_owned()]);
     // The merge takes the name the shards were swept with (bare names included).
-    if let Some(name) = o.run.name.as_deref().filter(|n| !n.is_empty()) {
+    if let Some(name) = o.run.job.name.as_deref().filter(|n| !n.is_empty()) {
         mesh.extend(["--name".into(), name.into()]);
     }
     if o.run.overwrite {

@@ -26,10 +26,8 @@ use crate::depth::DepthImages;
 use crate::depth::AXIS_NAMES;
 use crate::error::{OptionError, OptionKey};
 use crate::input::grid::{Accuracy, Overrides};
-use crate::input::motion::Motion;
 use crate::input::posed::{self, SweepInput};
 use crate::io::exr_depth::{self, ExtraMeta};
-use crate::io::mesh_formats::MeshFormat;
 use crate::io::{atomic, gltf_in, gltf_out, trajectory};
 use crate::job::{JobFile, JobOptions};
 use crate::mesh::classify::Method;
@@ -45,25 +43,14 @@ pub struct RunOptions {
     pub generator: PathBuf,
     pub trajectory: PathBuf,
     pub out_dir: PathBuf,
-    /// Output file stem; the trajectory's stem when None. Empty string: bare names
-    /// (`depth-xmin.exr`, `report.json`), as inside a watched job folder.
-    pub name: Option<String>,
-    pub accuracy: Accuracy,
-    pub overrides: Overrides,
+    /// The job's options, with the accuracy spelled out (`of_job` fills in the default).
+    /// `job.name` is the output stem: the trajectory's when None; empty, bare names
+    /// (`depth-xmin.exr`, `report.json`) as inside a watched job folder. `job.backend` is not
+    /// read here: the caller settles the backend.
+    pub job: JobOptions,
     pub overwrite: bool,
-    /// Stop simplifying at this many triangles (the error bounds always win); 0: as far as
-    /// the bounds allow.
-    pub target_triangles: usize,
-    /// Also write the unsimplified voxel boundary as `<stem>.start.glb`.
-    pub keep_start_mesh: bool,
-    /// Also write the output mesh in these formats (`<stem>.swept.stl`, ...).
-    pub also: Vec<MeshFormat>,
     /// Refuse a run whose estimated memory (`memory::estimate`) exceeds what is available.
     pub check_memory: bool,
-    /// What moves the parts between rows: the screw motion (covered) or nothing (discrete).
-    pub motion: Motion,
-    /// How voxels are classified: condition ⋆ with or without the flood from outside.
-    pub classify: Method,
 }
 
 impl RunOptions {
@@ -77,50 +64,40 @@ impl RunOptions {
         out_dir: PathBuf,
         default_accuracy: Accuracy,
     ) -> RunOptions {
+        let mut job = job.clone();
+        match Accuracy::choose(job.resolution, job.tolerance, default_accuracy) {
+            Accuracy::Resolution(n) => (job.resolution, job.tolerance) = (Some(n), None),
+            Accuracy::Tolerance(t) => (job.resolution, job.tolerance) = (None, Some(t)),
+        }
         RunOptions {
             generator,
             trajectory,
             out_dir,
-            name: job.name.clone(),
-            accuracy: Accuracy::choose(job.resolution, job.tolerance, default_accuracy),
-            overrides: Overrides {
-                delta: job.delta,
-                epsilon: job.epsilon,
-                radii: job.radii,
-            },
+            job,
             overwrite: false,
-            target_triangles: job.target_triangles.unwrap_or(0),
-            keep_start_mesh: job.keep_start_mesh,
-            also: job.also.clone(),
             check_memory: true,
-            motion: job.motion,
-            classify: job.classify,
         }
     }
-}
 
-impl RunOptions {
-    /// The options of this run as a job asks for them (the accuracy spelled out, so the job
-    /// needs no default): [`RunOptions::of_job`] gives this run back, but for `overwrite`,
-    /// `check_memory` and the paths.
+    /// The voxel size's setting: the resolution or the tolerance the job gives.
+    pub fn accuracy(&self) -> Accuracy {
+        Accuracy::choose(self.job.resolution, self.job.tolerance, Accuracy::DEFAULT)
+    }
+
+    /// δ and ε as the job gives them, or by its radii.
+    pub fn overrides(&self) -> Overrides {
+        Overrides {
+            delta: self.job.delta,
+            epsilon: self.job.epsilon,
+            radii: self.job.radii,
+        }
+    }
+
+    /// The job's options with `backend`: what a job file or a shard manifest records.
     pub fn job_options(&self, backend: Option<BackendChoice>) -> JobOptions {
-        let (resolution, tolerance) = match self.accuracy {
-            Accuracy::Resolution(n) => (Some(n), None),
-            Accuracy::Tolerance(t) => (None, Some(t)),
-        };
         JobOptions {
-            resolution,
-            tolerance,
-            delta: self.overrides.delta,
-            epsilon: self.overrides.epsilon,
             backend,
-            name: self.name.clone(),
-            target_triangles: (self.target_triangles > 0).then_some(self.target_triangles),
-            keep_start_mesh: self.keep_start_mesh,
-            also: self.also.clone(),
-            motion: self.motion,
-            classify: self.classify,
-            radii: self.overrides.radii,
+            ..self.job.clone()
         }
     }
 
@@ -246,19 +223,23 @@ fn build(opts: &RunOptions, outputs: OutputPaths) -> anyhow::Result<Prepared> {
         &opts.generator,
         &traj,
         &opts.trajectory,
-        opts.accuracy,
-        opts.overrides,
-        opts.motion,
+        opts.accuracy(),
+        opts.overrides(),
+        opts.job.motion,
     )?;
-    let band = SimplifyOptions::for_params(&input.params, input.grid.h, opts.target_triangles)?;
-    let classify = ClassifyPlan::new(opts.classify, &generator);
+    let band = SimplifyOptions::for_params(
+        &input.params,
+        input.grid.h,
+        opts.job.target_triangles.unwrap_or(0),
+    )?;
+    let classify = ClassifyPlan::new(opts.job.classify, &generator);
     if opts.check_memory {
         crate::input::memory::check(
             &input.grid,
-            opts.keep_start_mesh,
+            opts.job.keep_start_mesh,
             classify.flood,
             crate::input::memory::available(),
-            opts.overrides.radii.k_tolerance() + input.motion.mu / input.grid.h,
+            opts.job.radii.k_tolerance() + input.motion.mu / input.grid.h,
         )?;
     }
     Ok(Prepared {
@@ -346,7 +327,7 @@ pub fn finish(job: &Prepared, swept: Swept, observer: &dyn Observer) -> anyhow::
         tracing::info!("flooding from outside: {}", job.classify.reason);
     }
     let params = crate::surface::Params {
-        keep_start_mesh: opts.keep_start_mesh,
+        keep_start_mesh: opts.job.keep_start_mesh,
         ..crate::surface::Params::new(band)
     };
     let surface = crate::surface::build(&images, reach, &params, &|| observer.cancelled())
@@ -359,7 +340,7 @@ pub fn finish(job: &Prepared, swept: Swept, observer: &dyn Observer) -> anyhow::
         }
         .name()
         .into(),
-        asked: opts.classify.name().into(),
+        asked: opts.job.classify.name().into(),
         reason: job.classify.reason.clone(),
         reach_voxels: surface.reach_voxels,
         flooded_voxels: surface.flooded_voxels,
@@ -512,7 +493,7 @@ pub fn finish(job: &Prepared, swept: Swept, observer: &dyn Observer) -> anyhow::
         grid: input.grid,
         resolution: input.grid.resolution(),
         parameters: ParametersReport {
-            radii: opts.overrides.radii,
+            radii: opts.job.radii,
             voxel_size: h,
             delta: input.params.delta,
             epsilon: input.params.epsilon,

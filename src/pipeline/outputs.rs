@@ -10,7 +10,7 @@ use crate::io::mesh_formats::MeshFormat;
 
 /// The stem used for output names.
 pub fn output_stem(opts: &RunOptions) -> anyhow::Result<String> {
-    let stem = match &opts.name {
+    let stem = match &opts.job.name {
         Some(n) => n.clone(),
         None => opts
             .trajectory
@@ -25,7 +25,7 @@ pub fn output_stem(opts: &RunOptions) -> anyhow::Result<String> {
         )
         .into());
     }
-    if opts.name.is_none() && stem.is_empty() {
+    if opts.job.name.is_none() && stem.is_empty() {
         return Err(OptionError::new(
             OptionKey::Name,
             format!(
@@ -58,7 +58,7 @@ pub const INCOMPLETE_SUFFIX: &str = "incomplete";
 fn also_formats(opts: &RunOptions) -> impl Iterator<Item = MeshFormat> + '_ {
     MeshFormat::ALL
         .into_iter()
-        .filter(|f| opts.also.contains(f))
+        .filter(|f| opts.job.also.contains(f))
 }
 
 /// Every file a run writes, by role.
@@ -116,13 +116,13 @@ pub fn output_paths(opts: &RunOptions) -> anyhow::Result<OutputPaths> {
         let real = p.canonicalize().ok();
         real.is_some() && inputs.contains(&real)
     };
-    let stale = (!opts.keep_start_mesh)
+    let stale = (!opts.job.keep_start_mesh)
         .then(|| at(START_MESH_SUFFIX))
         .into_iter()
         .chain(
             MeshFormat::ALL
                 .into_iter()
-                .filter(|f| !opts.also.contains(f))
+                .filter(|f| !opts.job.also.contains(f))
                 .map(|f| at(f.suffix())),
         )
         .filter(|p| !is_input(p))
@@ -131,7 +131,7 @@ pub fn output_paths(opts: &RunOptions) -> anyhow::Result<OutputPaths> {
         mesh: at(MESH_SUFFIX),
         depth,
         report: at(REPORT_SUFFIX),
-        start_mesh: opts.keep_start_mesh.then(|| at(START_MESH_SUFFIX)),
+        start_mesh: opts.job.keep_start_mesh.then(|| at(START_MESH_SUFFIX)),
         also: also_formats(opts).map(|f| (f, at(f.suffix()))).collect(),
         marker: opts
             .out_dir

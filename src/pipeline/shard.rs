@@ -397,7 +397,7 @@ pub fn merge(
     let first = &set.shards[0].1;
     let mut opts = first.job.run_options(out_dir, overwrite);
     if name.is_some() {
-        opts.name = name;
+        opts.job.name = name;
     }
     // The inputs must be those the shards swept.
     let now = JobSpec::of(&opts)?;

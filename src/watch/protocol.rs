@@ -403,7 +403,7 @@ pub fn run_options(
         id.out_dir(root),
         default_accuracy,
     );
-    run.name = Some(id.stem().to_string());
+    run.job.name = Some(id.stem().to_string());
     run.overwrite = true;
     run
 }
