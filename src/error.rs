@@ -212,6 +212,24 @@ impl fmt::Display for OptionError {
 
 impl std::error::Error for OptionError {}
 
+/// An error chain as `{:#}` prints it, with the options that option and input errors name
+/// spelled by `spell` (the command line's flags, the watcher's job.json keys).
+pub fn worded_chain(e: &anyhow::Error, spell: impl Fn(OptionKey) -> String) -> String {
+    let parts: Vec<String> = e
+        .chain()
+        .map(|c| {
+            if let Some(o) = c.downcast_ref::<OptionError>() {
+                o.worded(&spell)
+            } else if let Some(i) = c.downcast_ref::<InputError>() {
+                i.worded(&spell)
+            } else {
+                c.to_string()
+            }
+        })
+        .collect();
+    parts.join(": ")
+}
+
 /// Exit code 2 errors: a problem with an input file or an option value.
 pub fn is_user_error(e: &anyhow::Error) -> bool {
     e.chain()

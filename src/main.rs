@@ -658,7 +658,11 @@ fn main() -> ExitCode {
         Ok(code) => code,
         Err(e) => {
             // A closed stderr must not turn an error into a panic either.
-            let _ = writeln!(std::io::stderr(), "error: {}", in_cli_terms(&e));
+            let _ = writeln!(
+                std::io::stderr(),
+                "error: {}",
+                error::worded_chain(&e, OptionKey::flag)
+            );
             // 2: the input or the options are wrong; 1: anything else.
             if error::is_user_error(&e) {
                 ExitCode::from(2)
@@ -686,22 +690,4 @@ fn say(text: std::fmt::Arguments) -> std::io::Result<()> {
         Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Ok(()),
         other => other,
     }
-}
-
-/// The error chain as `{:#}` prints it, with the options that option and input errors name
-/// spelled as this command line's flags.
-fn in_cli_terms(e: &anyhow::Error) -> String {
-    let parts: Vec<String> = e
-        .chain()
-        .map(|c| {
-            if let Some(o) = c.downcast_ref::<OptionError>() {
-                o.worded(OptionKey::flag)
-            } else if let Some(i) = c.downcast_ref::<error::InputError>() {
-                i.worded(OptionKey::flag)
-            } else {
-                c.to_string()
-            }
-        })
-        .collect();
-    parts.join(": ")
 }

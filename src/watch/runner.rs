@@ -105,7 +105,11 @@ pub fn run(ctx: &Context, job: &QueuedJob) -> State {
         }
         Ok(Err(e)) => {
             let error = e.downcast_ref::<InputError>().map(ErrorInfo::from);
-            (State::Failed, job_text(&e), error)
+            (
+                State::Failed,
+                crate::error::worded_chain(&e, protocol::job_spelling),
+                error,
+            )
         }
         Err(panic) => {
             let what = panic
@@ -285,24 +289,6 @@ fn in_job_terms(e: anyhow::Error, job_json: Option<&Path>) -> anyhow::Error {
         )),
         (Err(e), _) => e,
     }
-}
-
-/// An error as status.json's `message` holds it: the chain as `{:#}` prints it, with the
-/// options that option and input errors name spelled by [`protocol::job_spelling`].
-fn job_text(e: &anyhow::Error) -> String {
-    let parts: Vec<String> = e
-        .chain()
-        .map(|c| {
-            if let Some(o) = c.downcast_ref::<OptionError>() {
-                o.worded(protocol::job_spelling)
-            } else if let Some(i) = c.downcast_ref::<InputError>() {
-                i.worded(protocol::job_spelling)
-            } else {
-                c.to_string()
-            }
-        })
-        .collect();
-    parts.join(": ")
 }
 
 fn exists(path: &Path) -> bool {
