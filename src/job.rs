@@ -14,7 +14,6 @@ use serde::{Deserialize, Serialize};
 use crate::error::OptionKey;
 use crate::input::grid::Radii;
 use crate::input::motion::Motion;
-use crate::io::mesh_formats::MeshFormat;
 use crate::mesh::classify::Method;
 use crate::sweep::backend::BackendChoice;
 
@@ -113,6 +112,36 @@ pub fn file_stem(s: &str) -> Result<String, String> {
 /// The option key of job.json key `key`, where messages can name it.
 pub fn option_key(key: &str) -> Option<OptionKey> {
     OptionKey::ALL.into_iter().find(|k| k.name() == key)
+}
+
+/// An extra output format (`--also`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum MeshFormat {
+    /// Binary STL: one facet per triangle with its outward unit normal.
+    Stl,
+    /// Binary little-endian PLY: welded vertices, triangle faces.
+    Ply,
+    /// Wavefront OBJ: welded vertices (f32, printed so they read back exactly), triangle faces.
+    Obj,
+}
+
+impl MeshFormat {
+    pub const ALL: [MeshFormat; 3] = [MeshFormat::Stl, MeshFormat::Ply, MeshFormat::Obj];
+
+    /// The name `--also` and job.json take: `stl`, `ply`, `obj`.
+    pub fn name(self) -> &'static str {
+        &self.suffix()["swept.".len()..]
+    }
+
+    /// The file name suffix after the stem: `swept.stl`, ...
+    pub fn suffix(self) -> &'static str {
+        match self {
+            MeshFormat::Stl => "swept.stl",
+            MeshFormat::Ply => "swept.ply",
+            MeshFormat::Obj => "swept.obj",
+        }
+    }
 }
 
 #[cfg(test)]

@@ -3,9 +3,9 @@
 //! The modules follow the data, one way (docs/design.md has the arguments; tests/layout.rs
 //! fails on any import circle, between files or top-level modules):
 //!
-//! - [`io`]: the file formats, glTF and CSV in, EXR, glTF, STL, PLY, OBJ out, and atomic
-//!   writes. (Not the only code that touches files: `pipeline` checks outputs and writes shard
-//!   data, `cluster` its scripts, `watch` its status files, lock and scans.)
+//! - [`io`]: the file formats, glTF and CSV in, EXR, glTF, STL, PLY, OBJ out, the shard files,
+//!   and atomic writes. (Not the only code that touches files: `pipeline` checks existing
+//!   outputs, `cluster` writes its scripts, `watch` its status files, lock and scans.)
 //! - [`input`]: parts and poses become the sweep's input in grid units, with the voxel grid, the
 //!   parameters (δ, ε), the f32 rounding term ρ and the memory estimate.
 //! - [`sweep`]: the δ-offset of every posed triangle ray cast into six depth images, on the GPU

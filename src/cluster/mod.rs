@@ -17,8 +17,9 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::InputError;
 use crate::io::atomic;
+use crate::io::shard_files::ShardId;
 use crate::job::JobFile;
-use crate::pipeline::shard::{JobSpec, ShardId, ShardProgress};
+use crate::pipeline::shard::ShardProgress;
 use crate::pipeline::{self, RunOptions};
 use crate::sweep::backend::BackendChoice;
 
@@ -107,7 +108,7 @@ pub fn submit(o: &SubmitOptions) -> anyhow::Result<Submission> {
 pub fn submit_prepared(o: &SubmitOptions, job: &pipeline::Prepared) -> anyhow::Result<Submission> {
     anyhow::ensure!(o.shards >= 1, "a job needs at least one shard");
     let posed_triangles = job.input.posed_triangles();
-    let spec = JobSpec::of(&o.run)?;
+    let spec = o.run.spec()?;
     let dir = &o.shard_dir;
     fs::create_dir_all(dir.join("logs"))
         .with_context(|| format!("could not create the shard folder {}", dir.display()))?;

@@ -7,7 +7,7 @@ use std::process::Command;
 
 use anyhow::{bail, Context};
 
-use crate::pipeline::shard::ShardId;
+use crate::io::shard_files::ShardId;
 
 /// Marker files the scripts leave in the shard folder (read by `cluster status` and the watcher).
 pub const MERGE_EXIT: &str = "merge.exit";

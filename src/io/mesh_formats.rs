@@ -3,41 +3,12 @@
 //! as in the .glb), same outward-wound triangles; written through `atomic::Staged` like every
 //! other output.
 
-use serde::{Deserialize, Serialize};
-
 use crate::input::grid::Grid;
 use crate::io::gltf_out::world_positions;
+use crate::job::MeshFormat;
 use crate::mesh::Mesh;
 
-/// An extra output format (`--also`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, clap::ValueEnum)]
-#[serde(rename_all = "lowercase")]
-pub enum MeshFormat {
-    /// Binary STL: one facet per triangle with its outward unit normal.
-    Stl,
-    /// Binary little-endian PLY: welded vertices, triangle faces.
-    Ply,
-    /// Wavefront OBJ: welded vertices (f32, printed so they read back exactly), triangle faces.
-    Obj,
-}
-
 impl MeshFormat {
-    pub const ALL: [MeshFormat; 3] = [MeshFormat::Stl, MeshFormat::Ply, MeshFormat::Obj];
-
-    /// The name `--also` and job.json take: `stl`, `ply`, `obj`.
-    pub fn name(self) -> &'static str {
-        &self.suffix()["swept.".len()..]
-    }
-
-    /// The file name suffix after the stem: `swept.stl`, ...
-    pub fn suffix(self) -> &'static str {
-        match self {
-            MeshFormat::Stl => "swept.stl",
-            MeshFormat::Ply => "swept.ply",
-            MeshFormat::Obj => "swept.obj",
-        }
-    }
-
     /// The file's bytes for `mesh` (grid units) in world coordinates.
     pub fn bytes(self, mesh: &Mesh, grid: &Grid, name: &str) -> Vec<u8> {
         let (positions, _) = world_positions(mesh, grid);

@@ -7,4 +7,5 @@ pub mod exr_depth;
 pub mod gltf_in;
 pub mod gltf_out;
 pub mod mesh_formats;
+pub mod shard_files;
 pub mod trajectory;

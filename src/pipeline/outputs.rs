@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use super::RunOptions;
 use crate::error::{OptionError, OptionKey};
 use crate::io::exr_depth::{self, Side};
-use crate::io::mesh_formats::MeshFormat;
+use crate::job::MeshFormat;
 
 /// The stem used for output names.
 pub fn output_stem(opts: &RunOptions) -> anyhow::Result<String> {

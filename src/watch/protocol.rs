@@ -10,7 +10,7 @@ use serde::{Deserialize, Serialize};
 use crate::error::{InputError, OptionKey};
 use crate::input::grid::{Accuracy, Radii};
 use crate::io::exr_depth::{depth_file_name, Side};
-use crate::io::mesh_formats::MeshFormat;
+use crate::job::MeshFormat;
 use crate::pipeline::{self, RunOptions};
 
 /// A folder being written by a client: never read. Renaming it without the suffix commits it.
