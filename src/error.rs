@@ -94,10 +94,13 @@ pub enum OptionKey {
     TargetTriangles,
     KeepStartMesh,
     Also,
+    Against,
+    RequireClearance,
+    ClearanceScale,
 }
 
 impl OptionKey {
-    pub const ALL: [OptionKey; 20] = [
+    pub const ALL: [OptionKey; 23] = [
         OptionKey::Resolution,
         OptionKey::Tolerance,
         OptionKey::Delta,
@@ -118,6 +121,9 @@ impl OptionKey {
         OptionKey::TargetTriangles,
         OptionKey::KeepStartMesh,
         OptionKey::Also,
+        OptionKey::Against,
+        OptionKey::RequireClearance,
+        OptionKey::ClearanceScale,
     ];
 
     /// The library's name: snake_case, the same as the job.json key where there is one.
@@ -143,6 +149,9 @@ impl OptionKey {
             OptionKey::TargetTriangles => "target_triangles",
             OptionKey::KeepStartMesh => "keep_start_mesh",
             OptionKey::Also => "also",
+            OptionKey::Against => "against",
+            OptionKey::RequireClearance => "require_clearance",
+            OptionKey::ClearanceScale => "clearance_scale",
         }
     }
 

@@ -26,7 +26,10 @@
 //! - [`pipeline`]: one run, files in to files out, with its named outputs and its report;
 //!   [`watch`] and `main.rs` are its shells, and [`cluster`] runs it on SLURM in shards.
 //! - [`verify`]: an independent certificate for any swept-volume mesh.
+//! - [`clearance`]: how far the swept volume stays from obstacles, as a guaranteed interval
+//!   (`pipeline::clearance` runs it on files).
 
+pub mod clearance;
 pub mod cluster;
 pub mod depth;
 pub mod error;

@@ -55,6 +55,11 @@ enum Command {
     /// Check any swept-volume mesh against the generator and trajectory, trusting nothing of the
     /// sweep: containment, deviation, mesh health. Exit 0 pass, 3 certificate failed, 2 bad input.
     Verify(VerifyArgs),
+    /// Measure how far a swept volume stays from obstacles: for each obstacle a guaranteed
+    /// interval for the true clearance, a verdict (clear, possible contact, contact) and a
+    /// clearance map NAME.OBSTACLE.clearance.glb; NAME.clearance.json holds it all. Exit 0,
+    /// 3 when --require-clearance is not kept, 2 bad input.
+    Clearance(ClearanceArgs),
     /// Print the watched-folder protocol's names (inputs, outputs, job.json keys, states) as
     /// JSON, for clients in other languages such as the Blender add-on.
     Protocol,
@@ -183,6 +188,38 @@ struct VerifyArgs {
     /// No progress bar and only warnings and errors in the log.
     #[arg(long, short)]
     quiet: bool,
+}
+
+#[derive(Args)]
+struct ClearanceArgs {
+    /// The swept-volume mesh (NAME.swept.glb of `run`).
+    #[arg(long, value_name = "FILE")]
+    mesh: PathBuf,
+    /// Its report (NAME.report.json): the clearance and bound the mesh keeps, and the inputs
+    /// whose listed poses can prove a contact.
+    #[arg(long, value_name = "FILE")]
+    report: PathBuf,
+    /// An obstacle file (glTF 2.0): every node with triangles is an obstacle, named after the
+    /// node. Repeatable.
+    #[arg(long, value_name = "FILE", required = true)]
+    against: Vec<PathBuf>,
+    /// Exit 3 when an obstacle's guaranteed clearance (the interval's lower end) is below X
+    /// world units, or a contact is certain.
+    #[arg(long, value_name = "X", allow_negative_numbers = true)]
+    require_clearance: Option<f64>,
+    /// The clearance, world units, at which the map's colours reach green (red is contact)
+    /// [default: 10 times the mesh's bound].
+    #[arg(long, value_name = "X", allow_negative_numbers = true)]
+    clearance_scale: Option<f64>,
+    /// Where to write NAME.clearance.json and the maps [default: the mesh's folder].
+    #[arg(long, value_name = "DIR")]
+    out: Option<PathBuf>,
+    /// Replace the outputs of an earlier check.
+    #[arg(long)]
+    overwrite: bool,
+    /// Print NAME.clearance.json on stdout instead of the summary.
+    #[arg(long)]
+    json: bool,
 }
 
 #[derive(Args)]
@@ -614,6 +651,43 @@ fn verify(args: VerifyArgs) -> anyhow::Result<ExitCode> {
     })
 }
 
+fn clearance(args: ClearanceArgs) -> anyhow::Result<ExitCode> {
+    use sweptvol::pipeline::clearance as c;
+    let opts = c::ClearanceOptions {
+        mesh: args.mesh,
+        report: args.report,
+        against: args.against,
+        out_dir: args.out,
+        scale: args.clearance_scale,
+        require: args.require_clearance,
+        overwrite: args.overwrite,
+    };
+    let report = c::run(&opts)?;
+    if args.json {
+        say(format_args!("{}\n", serde_json::to_string_pretty(&report)?))?;
+    } else {
+        for e in &report.obstacles {
+            let o = &e.clearance;
+            say(format_args!(
+                "{}: {}; clearance in [{:.6}, {}]; map {}\n",
+                o.name,
+                c::verdict_words(o),
+                o.lower,
+                o.upper.map_or("unknown".into(), |u| format!("{u:.6}")),
+                e.map.display()
+            ))?;
+        }
+    }
+    Ok(if report.passes {
+        ExitCode::SUCCESS
+    } else {
+        if let Some(x) = report.required {
+            tracing::error!("an obstacle does not keep the required clearance {x}");
+        }
+        ExitCode::from(EXIT_CERTIFICATE_FAILED)
+    })
+}
+
 fn main() -> ExitCode {
     // Mesa's implicit Vulkan layer VK_LAYER_MESA_device_select probes Wayland while adapters
     // are enumerated and prints "XDG_RUNTIME_DIR is invalid" without a session; it only picks
@@ -629,6 +703,7 @@ fn main() -> ExitCode {
         Command::Cluster(_) => false,
         Command::Watch(a) => a.quiet,
         Command::Verify(a) => a.quiet || a.json,
+        Command::Clearance(a) => a.json,
         Command::Protocol => true,
     };
     let default_level = if quiet { "warn" } else { "info" };
@@ -651,6 +726,7 @@ fn main() -> ExitCode {
         Command::Cluster(c) => cluster(c).map(|()| ExitCode::SUCCESS),
         Command::Watch(args) => watch(args).map(|()| ExitCode::SUCCESS),
         Command::Verify(args) => verify(args),
+        Command::Clearance(args) => clearance(args),
         Command::Protocol => say(format_args!("{:#}\n", watch::protocol::names_json()))
             .map(|()| ExitCode::SUCCESS)
             .map_err(anyhow::Error::from),

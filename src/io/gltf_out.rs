@@ -80,7 +80,12 @@ pub fn glb_bytes(
         ],
         "buffers": [{"byteLength": bin.len()}],
     });
-    let mut json_bytes = serde_json::to_vec(&doc)?;
+    pack_glb(&doc, bin)
+}
+
+/// A .glb file of `doc` (JSON) and `bin` (its one buffer).
+fn pack_glb(doc: &serde_json::Value, mut bin: Vec<u8>) -> anyhow::Result<Vec<u8>> {
+    let mut json_bytes = serde_json::to_vec(doc)?;
     while json_bytes.len() % 4 != 0 {
         json_bytes.push(b' ');
     }
@@ -112,4 +117,75 @@ pub fn write_glb(
     extras: serde_json::Value,
 ) -> anyhow::Result<()> {
     atomic::write_atomic(path, &glb_bytes(mesh, grid, name, extras)?)
+}
+
+/// One obstacle's clearance map as .glb: the obstacle (world positions, f32) with the lower end
+/// of the clearance at each vertex in `_CLEARANCE` (f32, world units) and its colour in
+/// `COLOR_0`, and a node `closest points` with a line from the obstacle's closest point to the
+/// mesh's. `extras` goes into the obstacle node's `extras`.
+pub fn clearance_glb(
+    name: &str,
+    positions: &[[f32; 3]],
+    triangles: &[[u32; 3]],
+    values: &[f32],
+    colours: &[[f32; 3]],
+    closest: [[f32; 3]; 2],
+    extras: serde_json::Value,
+) -> anyhow::Result<Vec<u8>> {
+    if triangles.is_empty() {
+        bail!("the obstacle {name:?} has no triangles: no clearance map to write");
+    }
+    let bounds = |ps: &[[f32; 3]]| {
+        let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+        for p in ps {
+            for c in 0..3 {
+                lo[c] = lo[c].min(p[c]);
+                hi[c] = hi[c].max(p[c]);
+            }
+        }
+        (lo, hi)
+    };
+    let mut bin: Vec<u8> = Vec::new();
+    let mut views = Vec::new();
+    let mut view = |bin: &mut Vec<u8>, bytes: &[u8], target: u32| {
+        let at = bin.len();
+        bin.extend_from_slice(bytes);
+        views.push(
+            json!({"buffer": 0, "byteOffset": at, "byteLength": bytes.len(), "target": target}),
+        );
+        views.len() - 1
+    };
+    let (lo, hi) = bounds(positions);
+    let (mlo, mhi) = bounds(&closest);
+    let v_pos = view(&mut bin, bytemuck::cast_slice(positions), 34962);
+    let v_val = view(&mut bin, bytemuck::cast_slice(values), 34962);
+    let v_col = view(&mut bin, bytemuck::cast_slice(colours), 34962);
+    let v_idx = view(&mut bin, bytemuck::cast_slice(triangles), 34963);
+    let v_line = view(&mut bin, bytemuck::cast_slice(&closest), 34962);
+    let doc = json!({
+        "asset": {"version": "2.0", "generator": format!("sweptvol {}", env!("CARGO_PKG_VERSION"))},
+        "scene": 0,
+        "scenes": [{"nodes": [0, 1]}],
+        "nodes": [
+            {"name": name, "mesh": 0, "extras": extras},
+            {"name": "closest points", "mesh": 1},
+        ],
+        "meshes": [
+            {"name": name, "primitives": [{
+                "attributes": {"POSITION": 0, "_CLEARANCE": 1, "COLOR_0": 2}, "indices": 3, "mode": 4}]},
+            {"name": "closest points", "primitives": [{"attributes": {"POSITION": 4}, "mode": 1}]},
+        ],
+        "accessors": [
+            {"bufferView": v_pos, "componentType": 5126, "count": positions.len(), "type": "VEC3",
+             "min": lo, "max": hi},
+            {"bufferView": v_val, "componentType": 5126, "count": values.len(), "type": "SCALAR"},
+            {"bufferView": v_col, "componentType": 5126, "count": colours.len(), "type": "VEC3"},
+            {"bufferView": v_idx, "componentType": 5125, "count": 3 * triangles.len(), "type": "SCALAR"},
+            {"bufferView": v_line, "componentType": 5126, "count": 2, "type": "VEC3",
+             "min": mlo, "max": mhi},
+        ],
+        "bufferViews": views,
+        "buffers": [{"byteLength": bin.len()}],
+    });
+    pack_glb(&doc, bin)
 }

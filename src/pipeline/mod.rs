@@ -7,6 +7,7 @@ use std::time::Instant;
 
 use anyhow::{bail, Context};
 
+pub mod clearance;
 mod outputs;
 mod report;
 pub mod shard;
