@@ -235,11 +235,15 @@ pub fn measure(
     let meets = near.distance == 0.0
         || pair::inside(&swept.bvh, o.positions[o.triangles[0][0] as usize], None)
         || (o.solid && pair::inside(&o.bvh, swept.bvh.tris[0][0], None));
-    let (nearest_pose, witness) = search_poses(parts, o);
+    let witness = witness(parts, o);
     let mut upper: Option<(f64, &str)> = None;
     if g.everywhere {
         upper = Some((near.distance + g.bound + allowance, "mesh"));
     }
+    let nearest_pose = match &witness {
+        Some(_) => None,
+        None => nearest_pose(parts, o, near.a_point, upper.map_or(f64::INFINITY, |u| u.0)),
+    };
     if let Some(p) = &nearest_pose {
         if upper.is_none_or(|(u, _)| p.distance < u) {
             upper = Some((p.distance, "poses"));
@@ -275,71 +279,75 @@ pub fn measure(
     }
 }
 
-/// The part at its listed poses against `o`: the nearest pose and, where a pose meets the
-/// obstacle, the first such (in part and row order) as a witness.
-fn search_poses(parts: &[PosedPart], o: &Obstacle) -> (Option<NearestPose>, Option<Witness>) {
-    let mut best: Option<NearestPose> = None;
+/// The first listed pose (in part and row order) at which the part meets `o`: triangles that
+/// cross, or one inside the other (a closed part or obstacle).
+fn witness(parts: &[PosedPart], o: &Obstacle) -> Option<Witness> {
     for part in parts {
         for &(row, line, m) in &part.poses {
-            let cutoff = best.as_ref().map_or(f64::INFINITY, |b| b.distance);
-            let found = pair::nearest(&part.bvh, Some(&m), &o.bvh, cutoff.max(f64::MIN_POSITIVE));
-            let place = |n: &Nearest| NearestPose {
+            let at = |how: &str, p: DVec3, tris: Option<(u32, u32)>| Witness {
                 part: part.name.clone(),
                 row,
                 line,
-                distance: n.distance,
-                points: pair(n, false),
+                how: how.into(),
+                part_triangle: tris.map(|t| t.0),
+                obstacle_triangle: tris.map(|t| t.1),
+                point: p.to_array(),
             };
-            if let Some(n) = &found {
-                if n.distance == 0.0 {
-                    let w = Witness {
-                        part: part.name.clone(),
-                        row,
-                        line,
-                        how: "triangles cross".into(),
-                        part_triangle: Some(n.a_tri),
-                        obstacle_triangle: Some(n.b_tri),
-                        point: n.a_point.to_array(),
-                    };
-                    return (Some(place(n)), Some(w));
-                }
-                best = Some(place(n));
+            if let Some(n) = pair::meeting(&part.bvh, Some(&m), &o.bvh) {
+                return Some(at("triangles cross", n.a_point, Some((n.a_tri, n.b_tri))));
             }
-            // No crossing: one inside the other touches too.
-            let local = m.inverse();
             let part_point = m.transform_point3(part.bvh.tris[0][0]);
+            if o.solid && pair::inside(&o.bvh, part_point, None) {
+                return Some(at("part inside the obstacle", part_point, None));
+            }
             let obstacle_point = o.positions[o.triangles[0][0] as usize];
-            let how = if o.solid && pair::inside(&o.bvh, part_point, None) {
-                Some(("part inside the obstacle", part_point))
-            } else if part.solid && pair::inside(&part.bvh, obstacle_point, Some(&local)) {
-                Some(("obstacle inside the part", obstacle_point))
-            } else {
-                None
-            };
-            if let Some((how, point)) = how {
-                let w = Witness {
-                    part: part.name.clone(),
-                    row,
-                    line,
-                    how: how.into(),
-                    part_triangle: None,
-                    obstacle_triangle: None,
-                    point: point.to_array(),
-                };
-                let at = NearestPose {
-                    part: part.name.clone(),
-                    row,
-                    line,
-                    distance: 0.0,
-                    points: PointPair {
-                        on_obstacle: point.to_array(),
-                        on_swept: point.to_array(),
-                        distance: 0.0,
-                    },
-                };
-                return (Some(at), Some(w));
+            if part.solid && pair::inside(&part.bvh, obstacle_point, Some(&m.inverse())) {
+                return Some(at("obstacle inside the part", obstacle_point, None));
             }
         }
     }
-    (best, None)
+    None
+}
+
+/// Poses whose distance [`nearest_pose`] computes exactly: those nearest to the obstacle's
+/// closest point.
+const POSES_MEASURED: usize = 8;
+
+/// A listed pose at which the part comes near `o`, if nearer than `cutoff` (the upper end known
+/// already): its distance is a true distance to a point of the swept volume, so an upper end.
+/// Which poses: the `POSES_MEASURED` nearest to `toward` (the obstacle's point nearest to the
+/// mesh) by a point query each, then the exact distance of those; the others are not searched
+/// (this tightens the upper end, it is not needed for it).
+fn nearest_pose(
+    parts: &[PosedPart],
+    o: &Obstacle,
+    toward: DVec3,
+    cutoff: f64,
+) -> Option<NearestPose> {
+    let mut ranked: Vec<(f64, usize, usize)> = Vec::new();
+    for (k, part) in parts.iter().enumerate() {
+        for (i, (_, _, m)) in part.poses.iter().enumerate() {
+            let (d, _) = part.bvh.nearest(m.inverse().transform_point3(toward));
+            ranked.push((d, k, i));
+        }
+    }
+    ranked.sort_by(|x, y| x.0.total_cmp(&y.0).then((x.1, x.2).cmp(&(y.1, y.2))));
+    let mut best: Option<NearestPose> = None;
+    for &(_, k, i) in ranked.iter().take(POSES_MEASURED) {
+        let part = &parts[k];
+        let (row, line, m) = part.poses[i];
+        let limit = best.as_ref().map_or(cutoff, |b| b.distance);
+        if let Some(n) = pair::nearest(&part.bvh, Some(&m), &o.bvh, limit) {
+            if best.as_ref().is_none_or(|b| n.distance < b.distance) {
+                best = Some(NearestPose {
+                    part: part.name.clone(),
+                    row,
+                    line,
+                    distance: n.distance,
+                    points: pair(&n, false),
+                });
+            }
+        }
+    }
+    best
 }

@@ -1,7 +1,12 @@
 //! The nearest pair of points between two triangle sets, f64: exact triangle-triangle distance
 //! and a traversal of two BVHs, one of them under an affine pose.
 
+use std::collections::BinaryHeap;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Mutex;
+
 use glam::{DMat4, DVec3};
+use rayon::prelude::*;
 
 use crate::verify::bvh::{Bvh, Node};
 use crate::verify::geom;
@@ -143,6 +148,27 @@ pub fn triangle_pair(t: &[DVec3; 3], u: &[DVec3; 3]) -> (f64, DVec3, DVec3) {
     best
 }
 
+/// A lower bound of the distance between triangles `t` and `u`: how far `u` lies wholly to one
+/// side of `t`'s plane (0 where it reaches the plane, or `t` is degenerate).
+fn plane_gap(t: &[DVec3; 3], u: &[DVec3; 3]) -> f64 {
+    let n = (t[1] - t[0]).cross(t[2] - t[0]);
+    let len = n.length();
+    if len == 0.0 {
+        return 0.0;
+    }
+    let s = u.map(|v| n.dot(v - t[0]));
+    let (lo, hi) = (s[0].min(s[1]).min(s[2]), s[0].max(s[1]).max(s[2]));
+    // Relative rounding of the products, kept on the safe side.
+    let gap = if lo > 0.0 {
+        lo
+    } else if hi < 0.0 {
+        -hi
+    } else {
+        0.0
+    };
+    (gap / len) * (1.0 - 1e-9)
+}
+
 /// The world box of node `n` under `pose` (an affine map): the image of its centre plus the
 /// absolute linear part times its half extents, which holds the image of every point of it.
 fn posed_box(n: &Node, pose: Option<&DMat4>) -> (DVec3, DVec3) {
@@ -162,69 +188,200 @@ fn box_gap(a: (DVec3, DVec3), b: (DVec3, DVec3)) -> f64 {
     (a.0 - b.1).max(b.0 - a.1).max(DVec3::ZERO).length()
 }
 
-/// The nearest pair between `a`'s triangles under `pose` (None: as they are) and `b`'s, when
-/// nearer than `cutoff` (None otherwise). Stops at the first pair of meeting triangles.
-pub fn nearest(a: &Bvh, pose: Option<&DMat4>, b: &Bvh, cutoff: f64) -> Option<Nearest> {
-    let place = |t: u32| -> [DVec3; 3] {
-        let tri = a.tris[t as usize];
-        match pose {
+/// The two BVHs of a search, `a`'s under a pose.
+struct Pair<'a> {
+    a: &'a Bvh,
+    pose: Option<&'a DMat4>,
+    b: &'a Bvh,
+}
+
+impl Pair<'_> {
+    fn tri_a(&self, t: u32) -> [DVec3; 3] {
+        let tri = self.a.tris[t as usize];
+        match self.pose {
             Some(m) => tri.map(|v| m.transform_point3(v)),
             None => tri,
         }
-    };
-    let mut best: Option<Nearest> = None;
-    let mut limit = cutoff;
-    let root = (posed_box(&a.nodes[0], pose), (b.nodes[0].lo, b.nodes[0].hi));
-    let mut stack = vec![(0u32, 0u32, box_gap(root.0, root.1))];
-    while let Some((i, j, gap)) = stack.pop() {
-        if gap >= limit {
-            continue;
+    }
+
+    fn gap(&self, i: u32, j: u32) -> f64 {
+        let n = &self.b.nodes[j as usize];
+        box_gap(
+            posed_box(&self.a.nodes[i as usize], self.pose),
+            (n.lo, n.hi),
+        )
+    }
+
+    fn is_leaf(&self, i: u32, j: u32) -> bool {
+        self.a.nodes[i as usize].count > 0 && self.b.nodes[j as usize].count > 0
+    }
+
+    /// The children of pair (i, j): the larger node (or the one that is not a leaf) opened.
+    fn children(&self, i: u32, j: u32) -> [(u32, u32); 2] {
+        let (na, nb) = (&self.a.nodes[i as usize], &self.b.nodes[j as usize]);
+        let size = |n: &Node| (n.hi - n.lo).length();
+        if nb.count > 0 || (na.count == 0 && size(na) >= size(nb)) {
+            [(na.left, j), (na.right, j)]
+        } else {
+            [(i, nb.left), (i, nb.right)]
         }
-        let (na, nb) = (&a.nodes[i as usize], &b.nodes[j as usize]);
-        if na.count > 0 && nb.count > 0 {
-            for &s in a.leaf_tris(na) {
-                let ts = place(s);
-                for &t in b.leaf_tris(nb) {
-                    let (d, p, q) = triangle_pair(&ts, &b.tris[t as usize]);
-                    if d < limit {
-                        limit = d;
-                        best = Some(Nearest {
+    }
+
+    /// About `want` pairs that cover (i, j) (breadth first), for the threads to share.
+    fn frontier(&self, want: usize) -> Vec<(u32, u32)> {
+        let mut out = vec![(0u32, 0u32)];
+        while out.len() < want {
+            let Some(k) = out.iter().position(|&(i, j)| !self.is_leaf(i, j)) else {
+                break;
+            };
+            let (i, j) = out.swap_remove(k);
+            out.extend(self.children(i, j));
+        }
+        out
+    }
+}
+
+/// The best pair so far, shared by the threads: the distance's bits for quick pruning (f64 bits
+/// of non-negative numbers order as the numbers do), the pair itself under a lock.
+struct Best {
+    bits: AtomicU64,
+    pair: Mutex<Option<Nearest>>,
+}
+
+impl Best {
+    fn limit(&self) -> f64 {
+        f64::from_bits(self.bits.load(Ordering::Relaxed))
+    }
+
+    /// Keep `n` if it is nearer, or as near with smaller triangle indices: the result is the
+    /// least (distance, a_tri, b_tri), whatever the threads' order.
+    fn offer(&self, n: Nearest) {
+        let mut best = self.pair.lock().expect("no thread panics holding it");
+        let better =
+            best.is_none_or(|b| (n.distance, n.a_tri, n.b_tri) < (b.distance, b.a_tri, b.b_tri));
+        if better {
+            *best = Some(n);
+            self.bits.fetch_min(n.distance.to_bits(), Ordering::Relaxed);
+        }
+    }
+}
+
+/// The nearest pair between `a`'s triangles under `pose` (None: as they are) and `b`'s, when
+/// no farther than `cutoff` (None otherwise). Best-first over pairs of nodes, on all threads
+/// from a shared frontier; pairs whose boxes are farther apart than the best so far are
+/// skipped. Ties go to the smaller triangle indices, so the result does not depend on the
+/// number of threads.
+pub fn nearest(a: &Bvh, pose: Option<&DMat4>, b: &Bvh, cutoff: f64) -> Option<Nearest> {
+    let pair = Pair { a, pose, b };
+    let best = Best {
+        bits: AtomicU64::new(cutoff.max(0.0).to_bits()),
+        pair: Mutex::new(None),
+    };
+    let mut frontier: Vec<(f64, u32, u32)> = pair
+        .frontier(64)
+        .into_iter()
+        .map(|(i, j)| (pair.gap(i, j), i, j))
+        .collect();
+    frontier.sort_by(|x, y| x.0.total_cmp(&y.0));
+    frontier.par_iter().for_each(|&(gap, i, j)| {
+        if gap <= best.limit() {
+            search(&pair, &best, i, j, gap);
+        }
+    });
+    best.pair.into_inner().expect("no thread panicked")
+}
+
+/// A node pair's boxes' gap, for the best-first heap (smallest first).
+#[derive(PartialEq)]
+struct Open(f64, u32, u32);
+
+impl Eq for Open {}
+impl PartialOrd for Open {
+    fn partial_cmp(&self, other: &Self) -> Option<std::cmp::Ordering> {
+        Some(self.cmp(other))
+    }
+}
+impl Ord for Open {
+    fn cmp(&self, other: &Self) -> std::cmp::Ordering {
+        other.0.total_cmp(&self.0)
+    }
+}
+
+fn search(pair: &Pair, best: &Best, i: u32, j: u32, gap: f64) {
+    let mut heap = BinaryHeap::new();
+    heap.push(Open(gap, i, j));
+    while let Some(Open(gap, i, j)) = heap.pop() {
+        if gap > best.limit() {
+            return; // every pair left is at least as far
+        }
+        if pair.is_leaf(i, j) {
+            let (na, nb) = (&pair.a.nodes[i as usize], &pair.b.nodes[j as usize]);
+            for &s in pair.a.leaf_tris(na) {
+                let ts = pair.tri_a(s);
+                for &t in pair.b.leaf_tris(nb) {
+                    let u = &pair.b.tris[t as usize];
+                    // Most pairs of two near, nearly parallel surfaces are farther apart along
+                    // a plane's normal than the best so far: skip them without the full test.
+                    if plane_gap(&ts, u).max(plane_gap(u, &ts)) > best.limit() {
+                        continue;
+                    }
+                    let (d, p, q) = triangle_pair(&ts, u);
+                    if d <= best.limit() {
+                        best.offer(Nearest {
                             distance: d,
                             a_tri: s,
                             b_tri: t,
                             a_point: p,
                             b_point: q,
                         });
-                        if d == 0.0 {
-                            return best;
-                        }
                     }
                 }
             }
             continue;
         }
-        // Open the larger node (or the one that is not a leaf).
-        let size = |n: &Node| (n.hi - n.lo).length();
-        let open_a = nb.count > 0 || (na.count == 0 && size(na) >= size(nb));
-        let pairs: [(u32, u32); 2] = if open_a {
-            [(na.left, j), (na.right, j)]
-        } else {
-            [(i, nb.left), (i, nb.right)]
-        };
-        let gaps = pairs.map(|(x, y)| {
-            let bx = posed_box(&a.nodes[x as usize], pose);
-            let n = &b.nodes[y as usize];
-            box_gap(bx, (n.lo, n.hi))
-        });
-        // The nearer pair last, so it is taken first.
-        let order = if gaps[0] <= gaps[1] { [1, 0] } else { [0, 1] };
-        for k in order {
-            if gaps[k] < limit {
-                stack.push((pairs[k].0, pairs[k].1, gaps[k]));
+        for (x, y) in pair.children(i, j) {
+            let g = pair.gap(x, y);
+            if g <= best.limit() {
+                heap.push(Open(g, x, y));
             }
         }
     }
-    best
+}
+
+/// The first pair (in a fixed order) of a triangle of `a` under `pose` and one of `b` that
+/// cross, or meet as [`triangle_pair`] decides (distance 0): only pairs of overlapping boxes
+/// are opened, so it is fast where the sets stay apart.
+pub fn meeting(a: &Bvh, pose: Option<&DMat4>, b: &Bvh) -> Option<Nearest> {
+    let pair = Pair { a, pose, b };
+    let mut stack = vec![(0u32, 0u32)];
+    while let Some((i, j)) = stack.pop() {
+        if pair.gap(i, j) > 0.0 {
+            continue;
+        }
+        if pair.is_leaf(i, j) {
+            let (na, nb) = (&a.nodes[i as usize], &b.nodes[j as usize]);
+            for &s in a.leaf_tris(na) {
+                let ts = pair.tri_a(s);
+                for &t in b.leaf_tris(nb) {
+                    let (d, p, q) = triangle_pair(&ts, &b.tris[t as usize]);
+                    if d == 0.0 {
+                        return Some(Nearest {
+                            distance: 0.0,
+                            a_tri: s,
+                            b_tri: t,
+                            a_point: p,
+                            b_point: q,
+                        });
+                    }
+                }
+            }
+            continue;
+        }
+        let [x, y] = pair.children(i, j);
+        stack.push(y);
+        stack.push(x);
+    }
+    None
 }
 
 /// Whether `p` lies inside the closed surface of `bvh` (a non-zero winding number along a ray;
@@ -339,7 +496,17 @@ mod tests {
                 .fold(f64::INFINITY, f64::min);
             let found = nearest(&ba, Some(&pose), &bb, f64::INFINITY).unwrap();
             assert_eq!(found.distance, brute, "case {case}");
-            assert!(nearest(&ba, Some(&pose), &bb, brute).is_none());
+            assert!(nearest(&ba, Some(&pose), &bb, brute * (1.0 - 1e-12)).is_none());
+            assert_eq!(meeting(&ba, Some(&pose), &bb).is_some(), brute == 0.0);
+            // The same pair on one thread as on all.
+            let one = rayon::ThreadPoolBuilder::new()
+                .num_threads(1)
+                .build()
+                .unwrap();
+            assert_eq!(
+                one.install(|| nearest(&ba, Some(&pose), &bb, f64::INFINITY)),
+                Some(found)
+            );
         }
     }
 }
