@@ -116,18 +116,15 @@ fn main() {
     let lows = map::lower_ends(&swept, &g, o, c.verdict);
     let t_map = t0.elapsed().as_secs_f64();
     let t0 = Instant::now();
-    let positions: Vec<[f32; 3]> = o.positions.iter().map(|p| p.as_vec3().to_array()).collect();
-    let values: Vec<f32> = lows.iter().map(|&x| x as f32).collect();
-    let colours: Vec<[f32; 3]> = lows.iter().map(|&x| map::colour(x, 0.2)).collect();
-    let bytes = sweptvol::io::gltf_out::clearance_glb(
-        "bowl",
-        &positions,
-        &o.triangles,
-        &values,
-        &colours,
-        [[0.0; 3], [0.0; 3]],
-        serde_json::Value::Null,
-    )
+    let bytes = sweptvol::io::gltf_out::clearance_glb(&[sweptvol::io::gltf_out::MapNode {
+        name: "bowl",
+        positions: o.positions.iter().map(|p| p.as_vec3().to_array()).collect(),
+        triangles: &o.triangles,
+        values: lows.iter().map(|&x| x as f32).collect(),
+        colours: lows.iter().map(|&x| map::colour(x, 0.2)).collect(),
+        closest: [[0.0; 3], [0.0; 3]],
+        extras: serde_json::Value::Null,
+    }])
     .unwrap();
     std::fs::write(dir.join("bowl.clearance.glb"), bytes).unwrap();
     let t_write = t0.elapsed().as_secs_f64();

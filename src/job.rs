@@ -67,6 +67,19 @@ pub struct JobOptions {
     /// paper's (δ = (2√3+√2)h/2, ε = √3h/2; about 4.17h + μ).
     #[arg(long, value_enum, default_value_t)]
     pub radii: Radii,
+    /// An obstacle file (glTF 2.0; every node with triangles is an obstacle): the report gains
+    /// each obstacle's clearance, a guaranteed interval and a verdict, and NAME.FILE.clearance.glb
+    /// its clearance map. Repeatable.
+    #[arg(long, value_name = "FILE")]
+    pub against: Vec<PathBuf>,
+    /// Fail (exit 3; the outputs are still written) when an obstacle's guaranteed clearance is
+    /// below X world units, or a contact is certain.
+    #[arg(long, value_name = "X", allow_negative_numbers = true)]
+    pub require_clearance: Option<f64>,
+    /// The clearance, world units, at which the map's colours reach green (red is contact)
+    /// [default: 10 times the stated bound].
+    #[arg(long, value_name = "X", allow_negative_numbers = true)]
+    pub clearance_scale: Option<f64>,
 }
 
 /// A whole job as one file, as `cluster submit` writes it for its array tasks (`sweep --job
@@ -86,7 +99,7 @@ pub struct JobFile {
 }
 
 /// The keys of job.json: [`JobOptions`]'s fields, in order (a test holds them to the struct).
-pub const JOB_KEYS: [&str; 12] = [
+pub const JOB_KEYS: [&str; 15] = [
     "resolution",
     "tolerance",
     "delta",
@@ -99,6 +112,9 @@ pub const JOB_KEYS: [&str; 12] = [
     "motion",
     "classify",
     "radii",
+    "against",
+    "require_clearance",
+    "clearance_scale",
 ];
 
 /// An output file stem: a name, not empty and not a path.

@@ -422,7 +422,7 @@ fn progress_bar(quiet: bool) -> Bar {
     }
 }
 
-fn run(args: RunArgs) -> anyhow::Result<()> {
+fn run(args: RunArgs) -> anyhow::Result<ExitCode> {
     let (opts, backend) = run_options(&args)?;
     // Inputs first: a bad file is reported before any GPU start-up.
     let job = pipeline::prepare(&opts)?;
@@ -431,7 +431,10 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
     let report = pipeline::execute(&job, &backend, &observer)?;
     observer.bar.finish_and_clear();
     log_done(&report, &opts.out_dir);
-    Ok(())
+    Ok(report.clearance.as_ref().map_or(ExitCode::SUCCESS, |c| {
+        let _ = say_clearance(c);
+        clearance_exit(c)
+    }))
 }
 
 fn log_done(report: &pipeline::Report, out: &std::path::Path) {
@@ -490,11 +493,14 @@ fn read_job_file(path: &std::path::Path) -> anyhow::Result<sweptvol::job::JobFil
     })
 }
 
-fn mesh(args: MeshArgs) -> anyhow::Result<()> {
+fn mesh(args: MeshArgs) -> anyhow::Result<ExitCode> {
     let (job, swept) = shard::merge(&args.from, args.out.clone(), args.name, args.overwrite)?;
     let report = pipeline::finish(&job, swept, &sweptvol::sweep::Silent)?;
     log_done(&report, &args.out);
-    Ok(())
+    Ok(report.clearance.as_ref().map_or(ExitCode::SUCCESS, |c| {
+        let _ = say_clearance(c);
+        clearance_exit(c)
+    }))
 }
 
 fn cluster(command: ClusterCommand) -> anyhow::Result<()> {
@@ -656,36 +662,50 @@ fn clearance(args: ClearanceArgs) -> anyhow::Result<ExitCode> {
     let opts = c::ClearanceOptions {
         mesh: args.mesh,
         report: args.report,
-        against: args.against,
+        asked: c::Asked {
+            against: args.against,
+            require: args.require_clearance,
+            scale: args.clearance_scale,
+        },
         out_dir: args.out,
-        scale: args.clearance_scale,
-        require: args.require_clearance,
         overwrite: args.overwrite,
     };
     let report = c::run(&opts)?;
     if args.json {
         say(format_args!("{}\n", serde_json::to_string_pretty(&report)?))?;
     } else {
-        for e in &report.obstacles {
-            let o = &e.clearance;
-            say(format_args!(
-                "{}: {}; clearance in [{:.6}, {}]; map {}\n",
-                o.name,
-                c::verdict_words(o),
-                o.lower,
-                o.upper.map_or("unknown".into(), |u| format!("{u:.6}")),
-                e.map.display()
-            ))?;
-        }
+        say_clearance(&report.clearance)?;
     }
-    Ok(if report.passes {
-        ExitCode::SUCCESS
-    } else {
-        if let Some(x) = report.required {
-            tracing::error!("an obstacle does not keep the required clearance {x}");
-        }
-        ExitCode::from(EXIT_CERTIFICATE_FAILED)
-    })
+    Ok(clearance_exit(&report.clearance))
+}
+
+/// One line per obstacle: verdict, interval, map.
+fn say_clearance(c: &sweptvol::clearance::ClearanceSection) -> std::io::Result<()> {
+    for e in &c.obstacles {
+        let o = &e.clearance;
+        say(format_args!(
+            "{}: {}; clearance in [{:.6}, {}]; map {}\n",
+            o.name,
+            sweptvol::clearance::verdict_words(o),
+            o.lower,
+            o.upper.map_or("unknown".into(), |u| format!("{u:.6}")),
+            e.map.display()
+        ))?;
+    }
+    Ok(())
+}
+
+/// 0, or 3 when an obstacle does not keep the required clearance.
+fn clearance_exit(c: &sweptvol::clearance::ClearanceSection) -> ExitCode {
+    if c.passes {
+        return ExitCode::SUCCESS;
+    }
+    if let Some(x) = c.required {
+        tracing::error!(
+            "an obstacle does not keep the required clearance {x} (--require-clearance)"
+        );
+    }
+    ExitCode::from(EXIT_CERTIFICATE_FAILED)
 }
 
 fn main() -> ExitCode {
@@ -720,9 +740,9 @@ fn main() -> ExitCode {
         .with_target(false)
         .init();
     let result = match cli.command {
-        Command::Run(args) => run(args).map(|()| ExitCode::SUCCESS),
+        Command::Run(args) => run(args),
         Command::Sweep(args) => sweep_shard(args).map(|()| ExitCode::SUCCESS),
-        Command::Mesh(args) => mesh(args).map(|()| ExitCode::SUCCESS),
+        Command::Mesh(args) => mesh(args),
         Command::Cluster(c) => cluster(c).map(|()| ExitCode::SUCCESS),
         Command::Watch(args) => watch(args).map(|()| ExitCode::SUCCESS),
         Command::Verify(args) => verify(args),

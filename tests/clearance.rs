@@ -260,7 +260,7 @@ fn the_clearance_map_holds_a_lower_end_per_vertex() {
     assert_eq!(code, 0, "{err}");
     let map = PathBuf::from(v["obstacles"][0]["map"].as_str().unwrap());
     assert!(
-        map.ends_with("part.part.clearance.glb"),
+        map.ends_with("part.obstacle.clearance.glb"),
         "{}",
         map.display()
     );
@@ -299,7 +299,10 @@ fn the_clearance_map_holds_a_lower_end_per_vertex() {
         .nodes()
         .filter_map(|n| n.name().map(String::from))
         .collect();
-    assert!(nodes.contains(&"closest points".to_string()), "{nodes:?}");
+    assert!(
+        nodes.contains(&"part closest points".to_string()),
+        "{nodes:?}"
+    );
     // Nothing is overwritten without being asked.
     let again = sweptvol(&[
         "clearance",
@@ -620,4 +623,80 @@ fn random_parts_motions_and_obstacles_never_leave_the_interval() {
         );
     }
     eprintln!("200 cases, 0 violations; verdicts {verdicts:?}");
+}
+
+/// `run --against`: the report gains the clearance section and the map is published with the
+/// other outputs; --require-clearance fails with exit 3 after writing them; a later run against
+/// another file retires the earlier map with --overwrite.
+#[test]
+fn run_against_reports_and_maps_with_the_other_outputs() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    let (bp, bt) = box_mesh([0.0; 3], [1.0; 3]);
+    let g = write(dir, "part.glb", glb(&bp, &bt));
+    let t = write(dir, "part.csv", translations(&[[0.0; 3], [1.0, 0.0, 0.0]]));
+    let (pp, pt) = plate_x(4.0, 3.0);
+    let wall = write(dir, "wall.glb", glb_parts(&[("wall", &pp, &pt)]));
+    let out = dir.join("out");
+    let r = sweptvol(&run_args(
+        &g,
+        &t,
+        &out,
+        &[
+            "--against",
+            wall.to_str().unwrap(),
+            "--require-clearance",
+            "10",
+        ],
+    ));
+    assert_eq!(
+        r.status.code(),
+        Some(3),
+        "{}",
+        String::from_utf8_lossy(&r.stderr)
+    );
+    let report: Value =
+        serde_json::from_slice(&fs::read(out.join("part.report.json")).unwrap()).unwrap();
+    let c = &report["clearance"];
+    assert_eq!(c["passes"], false);
+    let o = &c["obstacles"][0];
+    assert_eq!(o["name"], "wall");
+    let (lo, hi) = interval(o);
+    assert!(
+        lo <= 2.0 && 2.0 <= hi,
+        "true clearance 2 outside [{lo}, {hi}]"
+    );
+    let map = out.join("part.wall.clearance.glb");
+    assert!(map.exists());
+    assert!(report["outputs"]
+        .as_array()
+        .unwrap()
+        .contains(&Value::from(map.to_str().unwrap())));
+    assert!(!out.join(".part.incomplete").exists());
+    // Against another file: the old map goes with --overwrite, and the run passes.
+    let fence = write(dir, "fence.glb", glb_parts(&[("fence", &pp, &pt)]));
+    let r = sweptvol(&run_args(
+        &g,
+        &t,
+        &out,
+        &["--against", fence.to_str().unwrap(), "--overwrite"],
+    ));
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    assert!(out.join("part.fence.clearance.glb").exists());
+    assert!(
+        !map.exists(),
+        "the earlier run's map was left beside the new outputs"
+    );
+    // A bad obstacle is refused before the sweep: nothing written.
+    let bad = write(dir, "bad.glb", "not glTF");
+    let fresh = dir.join("fresh");
+    let r = sweptvol(&run_args(
+        &g,
+        &t,
+        &fresh,
+        &["--against", bad.to_str().unwrap()],
+    ));
+    assert_eq!(r.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&r.stderr).contains("bad.glb"));
+    assert!(!fresh.exists() || fs::read_dir(&fresh).unwrap().next().is_none());
 }

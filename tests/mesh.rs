@@ -5,7 +5,6 @@
 
 mod common;
 
-
 use common::{
     build, dist_to_set, posed_grid_triangles, random_rigid_poses, tetrahedron, winding_number, Rng,
     V3,

@@ -1004,3 +1004,66 @@ fn a_watched_jobs_texts_name_job_keys_not_flags() {
     assert!(!message.contains("--") && !fix.contains("--"), "{s:#}");
     assert!(fix.contains("set \"motion\" to discrete"), "{s:#}");
 }
+
+/// Issue 28: a job folder may name obstacle files of the folder in job.json's `against`: the
+/// report gains their clearance, the map is written beside the outputs (and is no input: the
+/// job runs once), and a name that leads out of the folder fails the job by its key.
+#[test]
+fn a_job_folders_obstacles_are_measured_once_and_never_read_outside() {
+    let (_tmp, dir) = watched();
+    let wall = glb(
+        &[
+            [3.0, -2.0, -2.0],
+            [3.0, 2.0, -2.0],
+            [3.0, 2.0, 2.0],
+            [3.0, -2.0, 2.0],
+        ],
+        &[[0, 1, 2], [0, 2, 3]],
+    );
+    let near = submit(
+        &dir,
+        "near",
+        &[
+            ("generator.glb", &tet_glb()),
+            ("trajectory.csv", csv(3).as_bytes()),
+            ("wall.glb", &wall),
+            (
+                "job.json",
+                br#"{"resolution": 16, "against": ["wall.glb"]}"#,
+            ),
+        ],
+    );
+    fs::write(dir.join("secret.glb"), &wall).unwrap();
+    let out = submit(
+        &dir,
+        "out",
+        &[
+            ("generator.glb", &tet_glb()),
+            ("trajectory.csv", csv(3).as_bytes()),
+            (
+                "job.json",
+                br#"{"resolution": 16, "against": ["../secret.glb"]}"#,
+            ),
+        ],
+    );
+    let mut d = Daemon::start(&dir, "obstacles.log", &[]);
+    wait_until(Duration::from_secs(60), "both jobs to finish", || {
+        ["done", "failed"].contains(&state(&near.join("status.json")).as_str())
+            && ["done", "failed"].contains(&state(&out.join("status.json")).as_str())
+    });
+    // Two rescans later the job with a map has still run once.
+    std::thread::sleep(Duration::from_millis(2500));
+    let log = d.log();
+    assert_eq!(state(&near.join("status.json")), "done", "{log}");
+    assert_eq!(log.matches("near/: running").count(), 1, "{log}");
+    let report: Value =
+        serde_json::from_slice(&fs::read(near.join("report.json")).unwrap()).unwrap();
+    let o = &report["clearance"]["obstacles"][0];
+    assert_eq!(o["verdict"], "clear", "{o}");
+    assert!(near.join("wall.clearance.glb").exists());
+    let s = status(&out.join("status.json")).unwrap();
+    assert_eq!(s["state"], "failed", "{s:#}");
+    assert_eq!(s["error"]["column"], "against", "{s:#}");
+    d.signal(libc::SIGTERM);
+    assert!(d.wait(Duration::from_secs(20)).success());
+}

@@ -260,12 +260,14 @@ SAMPLING = "sampling.json"
 MESH = "swept.glb"
 START_MESH = "start.glb"
 REPORT = "report.json"
+CLEARANCE_MAP = "clearance.glb"  # <obstacle file stem>.clearance.glb, one per job.json `against`
 STATUS = "status.json"
 DEPTH_IMAGES = tuple(f"depth-{a}{s}.exr" for a in "xyz" for s in ("min", "max"))
 ALSO_OUTPUTS = {"stl": "swept.stl", "ply": "swept.ply", "obj": "swept.obj"}  # job.json `also`
 
 JOB_KEYS = ("resolution", "tolerance", "delta", "epsilon", "backend", "name", "motion",
-            "target_triangles", "keep_start_mesh", "also", "classify", "radii")
+            "target_triangles", "keep_start_mesh", "also", "classify", "radii", "against",
+            "require_clearance", "clearance_scale")
 MOTIONS = ("screw", "discrete")  # job.json `motion`: the motion between rows covered, or not
 CLASSIFY_METHODS = ("auto", "flood", "axes")  # job.json `classify`: hidden pockets opened or not
 RADII = ("exact", "paper")  # job.json `radii`: δ and ε (sampling.py assumes the default, exact)

@@ -195,6 +195,52 @@ pub struct NearestPose {
     pub points: PointPair,
 }
 
+/// The clearance section of a report: the guarantee it rests on, and each obstacle.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ClearanceSection {
+    pub guarantee: Guarantee,
+    /// How the part's listed poses were read (they prove contacts), or why not.
+    pub poses: String,
+    /// The colour ramp's green end, world units.
+    pub scale: f64,
+    /// The least clearance asked of every obstacle, world units.
+    pub required: Option<f64>,
+    /// Every obstacle keeps `required` (a certain contact never does); true when none is asked.
+    pub passes: bool,
+    pub obstacles: Vec<ObstacleEntry>,
+    /// Seconds spent measuring and mapping.
+    pub seconds: f64,
+}
+
+/// One obstacle's clearance and the map file that shows it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ObstacleEntry {
+    #[serde(flatten)]
+    pub clearance: ObstacleClearance,
+    pub map: PathBuf,
+}
+
+/// Whether an obstacle keeps `required`: its lower end is at least that, and no certain contact.
+pub fn keeps(c: &ObstacleClearance, required: Option<f64>) -> bool {
+    required.is_none_or(|x| c.lower >= x && c.verdict != Verdict::Contact)
+}
+
+/// The verdict in words for logs and summaries.
+pub fn verdict_words(c: &ObstacleClearance) -> String {
+    match (&c.verdict, &c.witness) {
+        (Verdict::Contact, Some(w)) => format!(
+            "CONTACT: {} {} at {}",
+            w.part,
+            w.how,
+            w.line.map_or("its place".into(), |l| format!("line {l}"))
+        ),
+        (Verdict::PossibleContact, _) => {
+            "possible contact: the obstacle meets the swept-volume mesh".into()
+        }
+        _ => "clear".into(),
+    }
+}
+
 /// A relative allowance for the f64 rounding of the distance computations: 1e-12 of the
 /// coordinates' magnitude (the computations lose far less than that).
 fn rounding_allowance(extent: f64) -> f64 {

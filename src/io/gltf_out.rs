@@ -119,21 +119,25 @@ pub fn write_glb(
     atomic::write_atomic(path, &glb_bytes(mesh, grid, name, extras)?)
 }
 
-/// One obstacle's clearance map as .glb: the obstacle (world positions, f32) with the lower end
-/// of the clearance at each vertex in `_CLEARANCE` (f32, world units) and its colour in
-/// `COLOR_0`, and a node `closest points` with a line from the obstacle's closest point to the
-/// mesh's. `extras` goes into the obstacle node's `extras`.
-pub fn clearance_glb(
-    name: &str,
-    positions: &[[f32; 3]],
-    triangles: &[[u32; 3]],
-    values: &[f32],
-    colours: &[[f32; 3]],
-    closest: [[f32; 3]; 2],
-    extras: serde_json::Value,
-) -> anyhow::Result<Vec<u8>> {
-    if triangles.is_empty() {
-        bail!("the obstacle {name:?} has no triangles: no clearance map to write");
+/// One obstacle of a clearance map: world positions (f32), triangles, the lower end of the
+/// clearance at each vertex (world units) and its colour, the closest points (on the obstacle,
+/// on the swept mesh), and what goes into the node's `extras`.
+pub struct MapNode<'a> {
+    pub name: &'a str,
+    pub positions: Vec<[f32; 3]>,
+    pub triangles: &'a [[u32; 3]],
+    pub values: Vec<f32>,
+    pub colours: Vec<[f32; 3]>,
+    pub closest: [[f32; 3]; 2],
+    pub extras: serde_json::Value,
+}
+
+/// A clearance map as .glb: per obstacle a node with the lower end of the clearance at each
+/// vertex in `_CLEARANCE` (f32, world units) and its colour in `COLOR_0`, and a child node
+/// `NAME closest points` with a line from the obstacle's closest point to the mesh's.
+pub fn clearance_glb(nodes: &[MapNode]) -> anyhow::Result<Vec<u8>> {
+    if nodes.is_empty() || nodes.iter().any(|n| n.triangles.is_empty()) {
+        bail!("a clearance map needs obstacles with triangles");
     }
     let bounds = |ps: &[[f32; 3]]| {
         let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
@@ -146,44 +150,73 @@ pub fn clearance_glb(
         (lo, hi)
     };
     let mut bin: Vec<u8> = Vec::new();
-    let mut views = Vec::new();
-    let mut view = |bin: &mut Vec<u8>, bytes: &[u8], target: u32| {
+    let (mut views, mut accessors, mut meshes, mut doc_nodes, mut roots) =
+        (vec![], vec![], vec![], vec![], vec![]);
+    // Appends a buffer view and an accessor over it; returns the accessor's index.
+    let mut add = |bin: &mut Vec<u8>, bytes: &[u8], target: u32, accessor: serde_json::Value| {
         let at = bin.len();
         bin.extend_from_slice(bytes);
+        let mut a = accessor;
+        a["bufferView"] = json!(views.len());
         views.push(
             json!({"buffer": 0, "byteOffset": at, "byteLength": bytes.len(), "target": target}),
         );
-        views.len() - 1
+        accessors.push(a);
+        accessors.len() - 1
     };
-    let (lo, hi) = bounds(positions);
-    let (mlo, mhi) = bounds(&closest);
-    let v_pos = view(&mut bin, bytemuck::cast_slice(positions), 34962);
-    let v_val = view(&mut bin, bytemuck::cast_slice(values), 34962);
-    let v_col = view(&mut bin, bytemuck::cast_slice(colours), 34962);
-    let v_idx = view(&mut bin, bytemuck::cast_slice(triangles), 34963);
-    let v_line = view(&mut bin, bytemuck::cast_slice(&closest), 34962);
+    for n in nodes {
+        let (lo, hi) = bounds(&n.positions);
+        let (mlo, mhi) = bounds(&n.closest);
+        let count = n.positions.len();
+        let pos = add(
+            &mut bin,
+            bytemuck::cast_slice(&n.positions),
+            34962,
+            json!({"componentType": 5126, "count": count, "type": "VEC3", "min": lo, "max": hi}),
+        );
+        let val = add(
+            &mut bin,
+            bytemuck::cast_slice(&n.values),
+            34962,
+            json!({"componentType": 5126, "count": count, "type": "SCALAR"}),
+        );
+        let col = add(
+            &mut bin,
+            bytemuck::cast_slice(&n.colours),
+            34962,
+            json!({"componentType": 5126, "count": count, "type": "VEC3"}),
+        );
+        let idx = add(
+            &mut bin,
+            bytemuck::cast_slice(n.triangles),
+            34963,
+            json!({"componentType": 5125, "count": 3 * n.triangles.len(), "type": "SCALAR"}),
+        );
+        let line = add(
+            &mut bin,
+            bytemuck::cast_slice(&n.closest),
+            34962,
+            json!({"componentType": 5126, "count": 2, "type": "VEC3", "min": mlo, "max": mhi}),
+        );
+        meshes.push(json!({"name": n.name, "primitives": [{
+            "attributes": {"POSITION": pos, "_CLEARANCE": val, "COLOR_0": col}, "indices": idx, "mode": 4}]}));
+        meshes.push(json!({"name": format!("{} closest points", n.name),
+            "primitives": [{"attributes": {"POSITION": line}, "mode": 1}]}));
+        roots.push(doc_nodes.len());
+        doc_nodes.push(
+            json!({"name": n.name, "mesh": meshes.len() - 2, "extras": n.extras,
+            "children": [doc_nodes.len() + 1]}),
+        );
+        doc_nodes
+            .push(json!({"name": format!("{} closest points", n.name), "mesh": meshes.len() - 1}));
+    }
     let doc = json!({
         "asset": {"version": "2.0", "generator": format!("sweptvol {}", env!("CARGO_PKG_VERSION"))},
         "scene": 0,
-        "scenes": [{"nodes": [0, 1]}],
-        "nodes": [
-            {"name": name, "mesh": 0, "extras": extras},
-            {"name": "closest points", "mesh": 1},
-        ],
-        "meshes": [
-            {"name": name, "primitives": [{
-                "attributes": {"POSITION": 0, "_CLEARANCE": 1, "COLOR_0": 2}, "indices": 3, "mode": 4}]},
-            {"name": "closest points", "primitives": [{"attributes": {"POSITION": 4}, "mode": 1}]},
-        ],
-        "accessors": [
-            {"bufferView": v_pos, "componentType": 5126, "count": positions.len(), "type": "VEC3",
-             "min": lo, "max": hi},
-            {"bufferView": v_val, "componentType": 5126, "count": values.len(), "type": "SCALAR"},
-            {"bufferView": v_col, "componentType": 5126, "count": colours.len(), "type": "VEC3"},
-            {"bufferView": v_idx, "componentType": 5125, "count": 3 * triangles.len(), "type": "SCALAR"},
-            {"bufferView": v_line, "componentType": 5126, "count": 2, "type": "VEC3",
-             "min": mlo, "max": mhi},
-        ],
+        "scenes": [{"nodes": roots}],
+        "nodes": doc_nodes,
+        "meshes": meshes,
+        "accessors": accessors,
         "bufferViews": views,
         "buffers": [{"byteLength": bin.len()}],
     });

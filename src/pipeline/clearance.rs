@@ -1,7 +1,6 @@
-//! `sweptvol clearance`: the clearance of obstacles from a swept-volume mesh already made,
-//! files in to files out: the mesh, its report (the guarantee, and the inputs whose listed
-//! poses can prove a contact) and obstacle files in; `NAME.clearance.json` and one clearance
-//! map per obstacle out, published as one set.
+//! Clearance on files: obstacles read and checked before a run's sweep, measured against the
+//! run's mesh as it is written (`run --against`), or against a mesh already made (`sweptvol
+//! clearance`); the maps staged with the other outputs, so a set is published whole.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -9,53 +8,69 @@ use std::time::Instant;
 use serde::{Deserialize, Serialize};
 
 use super::report::Report;
-use crate::clearance::{self, map, Guarantee, Obstacle, ObstacleClearance, PosedPart, Swept};
+use crate::clearance::{
+    self, map, verdict_words, ClearanceSection, Guarantee, Obstacle, ObstacleEntry, PosedPart,
+    Swept,
+};
 use crate::error::{InputError, OptionError, OptionKey};
-use crate::io::{atomic, gltf_in, gltf_out, trajectory};
-use crate::verify::poses;
+use crate::io::atomic::{self, Staged};
+use crate::io::gltf_out::{self, MapNode};
+use crate::io::{gltf_in, trajectory};
+use crate::verify::{bvh::Bvh, poses};
 
-/// What `clearance` is asked.
-#[derive(Clone, Debug)]
-pub struct ClearanceOptions {
-    /// The swept-volume mesh (NAME.swept.glb) and its report (NAME.report.json).
-    pub mesh: PathBuf,
-    pub report: PathBuf,
+/// What a clearance check is asked, beyond the mesh.
+#[derive(Clone, Debug, Default)]
+pub struct Asked {
     /// Obstacle files: every node with triangles is an obstacle.
     pub against: Vec<PathBuf>,
-    /// Where the outputs go (default: the mesh's folder).
-    pub out_dir: Option<PathBuf>,
-    /// The lower end, world units, at which the colour ramp reaches green (default 10 bounds).
-    pub scale: Option<f64>,
     /// The least clearance every obstacle must keep, world units.
     pub require: Option<f64>,
-    pub overwrite: bool,
+    /// The lower end at which the colour ramp reaches green [default: 10 bounds].
+    pub scale: Option<f64>,
 }
 
-/// `NAME.clearance.json`.
-#[derive(Clone, Debug, Serialize, Deserialize)]
-pub struct ClearanceReport {
-    pub sweptvol_version: String,
-    pub mesh: PathBuf,
-    pub report: PathBuf,
-    pub guarantee: Guarantee,
-    /// How the listed poses were read, or why not.
-    pub poses: String,
-    /// The colour ramp's green end, world units.
-    pub scale: f64,
-    pub required: Option<f64>,
-    /// Every obstacle keeps `required` (a certain contact never does); true when none is
-    /// required.
-    pub passes: bool,
-    pub obstacles: Vec<ObstacleEntry>,
-    pub seconds: f64,
-}
+impl Asked {
+    /// What a job's options ask.
+    pub fn of(job: &crate::job::JobOptions) -> Asked {
+        Asked {
+            against: job.against.clone(),
+            require: job.require_clearance,
+            scale: job.clearance_scale,
+        }
+    }
 
-/// One obstacle's clearance and its map file.
-#[derive(Clone, Debug, Serialize, Deserialize)]
-pub struct ObstacleEntry {
-    #[serde(flatten)]
-    pub clearance: ObstacleClearance,
-    pub map: PathBuf,
+    /// The options' own checks: a required clearance of at least 0, a positive scale.
+    pub fn check(&self) -> Result<(), OptionError> {
+        if let Some(x) = self.require {
+            if !(x.is_finite() && x >= 0.0) {
+                return Err(OptionError::new(
+                    OptionKey::RequireClearance,
+                    format!(
+                        "$require_clearance {x} is not a distance: give 0 or more, in world units"
+                    ),
+                ));
+            }
+        }
+        if let Some(x) = self.scale {
+            if !(x.is_finite() && x > 0.0) {
+                return Err(OptionError::new(
+                    OptionKey::ClearanceScale,
+                    format!("$clearance_scale {x} must be a positive distance (world units) at which the colours reach green"),
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// Every obstacle of every file, per file, read and checked (before any sweeping).
+    pub fn read(&self) -> anyhow::Result<Vec<Vec<Obstacle>>> {
+        self.check()?;
+        let mut out = Vec::new();
+        for path in &self.against {
+            out.push(clearance::read_obstacles(path)?);
+        }
+        Ok(out)
+    }
 }
 
 /// The guarantee a run's report states.
@@ -67,9 +82,118 @@ pub fn guarantee_of(report: &Report) -> Guarantee {
     }
 }
 
-/// Whether an obstacle keeps `required`: its lower end is at least that, and no certain contact.
-pub fn keeps(c: &ObstacleClearance, required: Option<f64>) -> bool {
-    required.is_none_or(|x| c.lower >= x && c.verdict != clearance::Verdict::Contact)
+/// The parts at the listed poses of a generator and trajectory, or why they could not be read.
+pub fn parts_at_poses(generator: &Path, trajectory: &Path) -> Result<Vec<PosedPart>, String> {
+    let g = gltf_in::read_generator(generator).map_err(|e| e.to_string())?;
+    let traj = trajectory::read_trajectory(trajectory).map_err(|e| e.to_string())?;
+    let assigned = poses::assign(&g, &traj, trajectory).map_err(|e| e.to_string())?;
+    Ok(g.parts
+        .iter()
+        .zip(assigned)
+        .filter(|(p, _)| !p.triangles.is_empty())
+        .map(|(part, poses)| PosedPart {
+            name: part
+                .node_name
+                .clone()
+                .unwrap_or_else(|| format!("node {}", part.node_index)),
+            bvh: Bvh::build(poses::local_triangles(part), 4),
+            solid: part.boundary_edges() == 0,
+            poses: poses.iter().map(|p| (p.row, p.line, p.matrix)).collect(),
+        })
+        .collect())
+}
+
+/// Measure every obstacle against `swept` (the mesh as written) and stage one map per file.
+#[allow(clippy::too_many_arguments)]
+pub fn measure_all(
+    swept: &Swept,
+    g: &Guarantee,
+    parts: Result<Vec<PosedPart>, String>,
+    files: &[Vec<Obstacle>],
+    maps: &[PathBuf],
+    asked: &Asked,
+    staged: &mut Staged,
+) -> anyhow::Result<ClearanceSection> {
+    let t0 = Instant::now();
+    let (parts, poses_read) = match parts {
+        Ok(parts) => {
+            let n: usize = parts.iter().map(|p| p.poses.len()).sum();
+            (parts, format!("{n} listed poses of the part"))
+        }
+        Err(e) => {
+            tracing::warn!("the part's poses are not read, so no contact can be proven: {e}");
+            (Vec::new(), format!("not read: {e}"))
+        }
+    };
+    let scale = asked.scale.unwrap_or(10.0 * g.bound);
+    let mut entries = Vec::new();
+    for (obstacles, map_path) in files.iter().zip(maps) {
+        let mut nodes = Vec::new();
+        for o in obstacles {
+            let c = clearance::measure(swept, g, &parts, o);
+            tracing::info!(
+                "{}: {} (clearance in [{}, {}])",
+                o.name,
+                verdict_words(&c),
+                c.lower,
+                c.upper.map_or("unknown".into(), |u| u.to_string())
+            );
+            let lows = map::lower_ends(swept, g, o, c.verdict);
+            let f = |p: [f64; 3]| glam::DVec3::from(p).as_vec3().to_array();
+            nodes.push(MapNode {
+                name: &o.name,
+                positions: o.positions.iter().map(|p| p.as_vec3().to_array()).collect(),
+                triangles: &o.triangles,
+                values: lows.iter().map(|&x| x as f32).collect(),
+                colours: lows.iter().map(|&x| map::colour(x, scale)).collect(),
+                closest: [f(c.closest.on_obstacle), f(c.closest.on_swept)],
+                extras: serde_json::json!({
+                    "sweptvol_verdict": c.verdict,
+                    "sweptvol_clearance_lower": c.lower,
+                    "sweptvol_clearance_upper": c.upper,
+                    "sweptvol_clearance_scale": scale,
+                }),
+            });
+            entries.push(ObstacleEntry {
+                clearance: c,
+                map: map_path.clone(),
+            });
+        }
+        staged.write(map_path, &gltf_out::clearance_glb(&nodes)?)?;
+    }
+    Ok(ClearanceSection {
+        guarantee: *g,
+        poses: poses_read,
+        scale,
+        required: asked.require,
+        passes: entries
+            .iter()
+            .all(|e| clearance::keeps(&e.clearance, asked.require)),
+        obstacles: entries,
+        seconds: t0.elapsed().as_secs_f64(),
+    })
+}
+
+/// What `sweptvol clearance` is asked.
+#[derive(Clone, Debug)]
+pub struct ClearanceOptions {
+    /// The swept-volume mesh (NAME.swept.glb) and its report (NAME.report.json).
+    pub mesh: PathBuf,
+    pub report: PathBuf,
+    pub asked: Asked,
+    /// Where the outputs go (default: the mesh's folder).
+    pub out_dir: Option<PathBuf>,
+    pub overwrite: bool,
+}
+
+/// `NAME.clearance.json`.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct ClearanceReport {
+    pub sweptvol_version: String,
+    pub mesh: PathBuf,
+    pub report: PathBuf,
+    #[serde(flatten)]
+    pub clearance: ClearanceSection,
 }
 
 fn read_report(path: &Path) -> anyhow::Result<Report> {
@@ -90,29 +214,6 @@ fn read_report(path: &Path) -> anyhow::Result<Report> {
     })
 }
 
-/// The parts at the report's listed poses, or why they could not be read.
-fn posed_parts(report: &Report) -> Result<Vec<PosedPart>, String> {
-    let generator = gltf_in::read_generator(&report.inputs.generator).map_err(|e| e.to_string())?;
-    let traj = trajectory::read_trajectory(&report.inputs.trajectory).map_err(|e| e.to_string())?;
-    let assigned =
-        poses::assign(&generator, &traj, &report.inputs.trajectory).map_err(|e| e.to_string())?;
-    Ok(generator
-        .parts
-        .iter()
-        .zip(assigned)
-        .filter(|(p, _)| !p.triangles.is_empty())
-        .map(|(part, poses)| PosedPart {
-            name: part
-                .node_name
-                .clone()
-                .unwrap_or_else(|| format!("node {}", part.node_index)),
-            bvh: crate::verify::bvh::Bvh::build(poses::local_triangles(part), 4),
-            solid: part.boundary_edges() == 0,
-            poses: poses.iter().map(|p| (p.row, p.line, p.matrix)).collect(),
-        })
-        .collect())
-}
-
 /// The file stem of a swept mesh: `part` of `part.swept.glb`.
 fn mesh_stem(mesh: &Path) -> String {
     let name = mesh
@@ -127,99 +228,41 @@ fn mesh_stem(mesh: &Path) -> String {
     name
 }
 
-/// An obstacle's name as a file-name piece: letters, digits, `-`, `_`; others become `_`.
-fn file_piece(name: &str) -> String {
-    let s: String = name
-        .chars()
-        .map(|c| {
-            if c.is_ascii_alphanumeric() || c == '-' || c == '_' {
-                c
-            } else {
-                '_'
-            }
-        })
-        .collect();
-    if s.is_empty() {
-        "obstacle".into()
-    } else {
-        s
-    }
-}
-
-/// The options' own checks: obstacles given, a required clearance of at least 0, a positive
-/// scale.
-pub fn check_options(opts: &ClearanceOptions) -> Result<(), OptionError> {
-    if opts.against.is_empty() {
+/// Measure every obstacle against a mesh already made and publish `NAME.clearance.json` and
+/// the maps (`NAME.FILE.clearance.glb`, as `run` names them) as one set.
+pub fn run(opts: &ClearanceOptions) -> anyhow::Result<ClearanceReport> {
+    if opts.asked.against.is_empty() {
         return Err(OptionError::new(
             OptionKey::Against,
             "no obstacle given: name at least one obstacle file with $against",
-        ));
+        )
+        .into());
     }
-    if let Some(x) = opts.require {
-        if !(x.is_finite() && x >= 0.0) {
-            return Err(OptionError::new(
-                OptionKey::RequireClearance,
-                format!("$require_clearance {x} is not a distance: give 0 or more, in the mesh's world units"),
-            ));
-        }
-    }
-    if let Some(x) = opts.scale {
-        if !(x.is_finite() && x > 0.0) {
-            return Err(OptionError::new(
-                OptionKey::ClearanceScale,
-                format!("$clearance_scale {x} must be a positive distance (world units) at which the colours reach green"),
-            ));
-        }
-    }
-    Ok(())
-}
-
-/// Measure every obstacle and publish the report and the maps.
-pub fn run(opts: &ClearanceOptions) -> anyhow::Result<ClearanceReport> {
-    let t0 = Instant::now();
-    check_options(opts)?;
     let report = read_report(&opts.report)?;
-    let g = guarantee_of(&report);
-    let tris = gltf_in::read_world_triangles(&opts.mesh)?;
-    let swept = Swept::new(tris);
-    let mut obstacles: Vec<Obstacle> = Vec::new();
-    for path in &opts.against {
-        obstacles.extend(clearance::read_obstacles(path)?);
-    }
-    let (parts, poses_read) = match posed_parts(&report) {
-        Ok(parts) => {
-            let n: usize = parts.iter().map(|p| p.poses.len()).sum();
-            (parts, format!("{n} listed poses of the report's inputs"))
-        }
-        Err(e) => {
-            tracing::warn!("the part's poses are not read, so no contact can be proven: {e}");
-            (Vec::new(), format!("not read: {e}"))
-        }
-    };
-    let scale = opts.scale.unwrap_or(10.0 * g.bound);
+    let files = opts.asked.read()?;
+    let swept = Swept::new(gltf_in::read_world_triangles(&opts.mesh)?);
     let dir = opts
         .out_dir
         .clone()
         .or_else(|| opts.mesh.parent().map(Path::to_path_buf))
         .unwrap_or_default();
     let stem = mesh_stem(&opts.mesh);
+    let run_like = super::RunOptions::of_job(
+        &crate::job::JobOptions {
+            against: opts.asked.against.clone(),
+            name: Some(stem.clone()),
+            ..Default::default()
+        },
+        opts.mesh.clone(),
+        opts.report.clone(),
+        dir.clone(),
+        crate::input::grid::Accuracy::DEFAULT,
+    );
+    let maps = super::outputs::output_paths(&run_like)?.clearance_maps;
     let json_path = dir.join(format!("{stem}.clearance.json"));
-    let mut used: Vec<String> = Vec::new();
-    let mut map_paths = Vec::new();
-    for o in &obstacles {
-        let mut piece = file_piece(&o.name);
-        let base = piece.clone();
-        let mut k = 2;
-        while used.contains(&piece) {
-            piece = format!("{base}-{k}");
-            k += 1;
-        }
-        used.push(piece.clone());
-        map_paths.push(dir.join(format!("{stem}.{piece}.clearance.glb")));
-    }
     if !opts.overwrite {
         if let Some(p) = std::iter::once(&json_path)
-            .chain(&map_paths)
+            .chain(&maps)
             .find(|p| p.exists())
         {
             return Err(InputError::new(
@@ -238,79 +281,16 @@ pub fn run(opts: &ClearanceOptions) -> anyhow::Result<ClearanceReport> {
         )
     })?;
     let mut staged = atomic::Staged::with_marker(dir.join(format!(".{stem}.clearance.incomplete")));
-    let mut entries = Vec::new();
-    for (o, map_path) in obstacles.iter().zip(map_paths) {
-        let c = clearance::measure(&swept, &g, &parts, o);
-        tracing::info!(
-            "{}: {} (clearance in [{}, {}])",
-            o.name,
-            verdict_words(&c),
-            c.lower,
-            c.upper.map_or("unknown".into(), |u| u.to_string())
-        );
-        let lows = map::lower_ends(&swept, &g, o, c.verdict);
-        let f32s = |v: &[glam::DVec3]| -> Vec<[f32; 3]> {
-            v.iter().map(|p| p.as_vec3().to_array()).collect()
-        };
-        let values: Vec<f32> = lows.iter().map(|&x| x as f32).collect();
-        let colours: Vec<[f32; 3]> = lows.iter().map(|&x| map::colour(x, scale)).collect();
-        let closest = [
-            glam::DVec3::from(c.closest.on_obstacle)
-                .as_vec3()
-                .to_array(),
-            glam::DVec3::from(c.closest.on_swept).as_vec3().to_array(),
-        ];
-        let extras = serde_json::json!({
-            "sweptvol_verdict": c.verdict,
-            "sweptvol_clearance_lower": c.lower,
-            "sweptvol_clearance_upper": c.upper,
-            "sweptvol_clearance_scale": scale,
-        });
-        let bytes = gltf_out::clearance_glb(
-            &o.name,
-            &f32s(&o.positions),
-            &o.triangles,
-            &values,
-            &colours,
-            closest,
-            extras,
-        )?;
-        staged.write(&map_path, &bytes)?;
-        entries.push(ObstacleEntry {
-            clearance: c,
-            map: map_path,
-        });
-    }
-    let passes = entries.iter().all(|e| keeps(&e.clearance, opts.require));
+    let g = guarantee_of(&report);
+    let parts = parts_at_poses(&report.inputs.generator, &report.inputs.trajectory);
+    let section = measure_all(&swept, &g, parts, &files, &maps, &opts.asked, &mut staged)?;
     let out = ClearanceReport {
         sweptvol_version: env!("CARGO_PKG_VERSION").into(),
         mesh: opts.mesh.clone(),
         report: opts.report.clone(),
-        guarantee: g,
-        poses: poses_read,
-        scale,
-        required: opts.require,
-        passes,
-        obstacles: entries,
-        seconds: t0.elapsed().as_secs_f64(),
+        clearance: section,
     };
     staged.write(&json_path, &serde_json::to_vec_pretty(&out)?)?;
     staged.commit()?;
     Ok(out)
-}
-
-/// The verdict in words for logs and summaries.
-pub fn verdict_words(c: &ObstacleClearance) -> String {
-    match (&c.verdict, &c.witness) {
-        (clearance::Verdict::Contact, Some(w)) => format!(
-            "CONTACT: {} {} at {}",
-            w.part,
-            w.how,
-            w.line.map_or("its place".into(), |l| format!("line {l}"))
-        ),
-        (clearance::Verdict::PossibleContact, _) => {
-            "possible contact: the obstacle meets the swept-volume mesh".into()
-        }
-        _ => "clear".into(),
-    }
 }

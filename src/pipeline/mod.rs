@@ -13,7 +13,8 @@ mod report;
 pub mod shard;
 
 pub use outputs::{
-    output_paths, output_stem, OutputPaths, MESH_SUFFIX, REPORT_SUFFIX, START_MESH_SUFFIX,
+    output_paths, output_stem, OutputPaths, CLEARANCE_SUFFIX, MESH_SUFFIX, REPORT_SUFFIX,
+    START_MESH_SUFFIX,
 };
 pub use report::{
     ClassificationReport, CountsReport, DepthImagesReport, InputsReport, MeshReport,
@@ -171,6 +172,9 @@ pub struct Prepared {
     pub band: SimplifyOptions,
     pub classify: ClassifyPlan,
     pub warnings: Vec<String>,
+    /// The obstacles of each `against` file, read and checked before the sweep (empty in a
+    /// shard, which measures nothing).
+    pub obstacles: Vec<Vec<crate::clearance::Obstacle>>,
     read_secs: f64,
     setup_secs: f64,
 }
@@ -207,7 +211,10 @@ pub fn prepare(opts: &RunOptions) -> anyhow::Result<Prepared> {
             ),
         )
     })?;
-    build(opts, outputs)
+    let mut job = build(opts, outputs)?;
+    // Obstacles are inputs too: a bad one is refused before the sweep.
+    job.obstacles = clearance::Asked::of(&opts.job).read()?;
+    Ok(job)
 }
 
 /// [`prepare`] without looking at the outputs (a shard writes its own files).
@@ -250,6 +257,7 @@ fn build(opts: &RunOptions, outputs: OutputPaths) -> anyhow::Result<Prepared> {
         band,
         classify,
         warnings: generator.warnings,
+        obstacles: Vec::new(),
         read_secs: (t1 - t0).as_secs_f64(),
         setup_secs: t1.elapsed().as_secs_f64(),
     })
@@ -476,6 +484,32 @@ pub fn finish(job: &Prepared, swept: Swept, observer: &dyn Observer) -> anyhow::
         let name = format!("{stem} swept volume");
         staged.write(path, &f.bytes(&mesh, &input.grid, name.trim_start()))?;
     }
+    let clearance = if job.obstacles.is_empty() {
+        None
+    } else {
+        checkpoint(observer, "clearance")?;
+        // The mesh as the file holds it (f32 world positions).
+        let (world, _) = gltf_out::world_positions(&mesh, &input.grid);
+        let tris = mesh
+            .triangles
+            .iter()
+            .map(|t| t.map(|i| glam::Vec3::from(world[i as usize]).as_dvec3()))
+            .collect();
+        let g = crate::clearance::Guarantee {
+            clearance: mesh_report.clearance,
+            bound: mesh_report.hausdorff_bound,
+            everywhere: carved,
+        };
+        Some(clearance::measure_all(
+            &crate::clearance::Swept::new(tris),
+            &g,
+            clearance::parts_at_poses(&opts.generator, &opts.trajectory),
+            &job.obstacles,
+            &job.outputs.clearance_maps,
+            &clearance::Asked::of(&opts.job),
+            &mut staged,
+        )?)
+    };
     let t_write = Instant::now();
 
     let report = Report {
@@ -536,6 +570,7 @@ pub fn finish(job: &Prepared, swept: Swept, observer: &dyn Observer) -> anyhow::
             files,
         },
         mesh: mesh_report,
+        clearance,
         warnings,
     };
     let json = serde_json::to_vec_pretty(&report)?;

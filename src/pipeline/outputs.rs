@@ -51,6 +51,8 @@ pub(super) fn with_stem(stem: &str, suffix: &str) -> String {
 pub const MESH_SUFFIX: &str = "swept.glb";
 pub const START_MESH_SUFFIX: &str = "start.glb";
 pub const REPORT_SUFFIX: &str = "report.json";
+/// A clearance map: `<stem>.<obstacle file stem>.clearance.glb`.
+pub const CLEARANCE_SUFFIX: &str = "clearance.glb";
 /// The hidden marker of a set being published (`.<stem>.incomplete`).
 pub const INCOMPLETE_SUFFIX: &str = "incomplete";
 
@@ -72,6 +74,8 @@ pub struct OutputPaths {
     pub start_mesh: Option<PathBuf>,
     /// The `also` formats, in `MeshFormat::ALL` order.
     pub also: Vec<(MeshFormat, PathBuf)>,
+    /// One clearance map per `against` file, in order.
+    pub clearance_maps: Vec<PathBuf>,
     /// `.<stem>.incomplete`: present while the set is being published, listing its files
     /// (`io::atomic::Staged`); one left behind marks a set a crash cut off.
     pub marker: PathBuf,
@@ -90,6 +94,7 @@ impl OutputPaths {
         out.push(self.report.clone());
         out.extend(self.start_mesh.iter().cloned());
         out.extend(self.also.iter().map(|(_, p)| p.clone()));
+        out.extend(self.clearance_maps.iter().cloned());
         out
     }
 
@@ -99,6 +104,47 @@ impl OutputPaths {
         out.extend(self.stale.iter().cloned());
         out
     }
+}
+
+/// The clearance map of each `against` file: `<stem>.<file stem>.clearance.glb`, the file stem
+/// made of letters, digits, `-` and `_` (others become `_`); two files of one stem are refused.
+fn clearance_map_paths(opts: &RunOptions, stem: &str) -> anyhow::Result<Vec<PathBuf>> {
+    let mut out: Vec<PathBuf> = Vec::new();
+    for file in &opts.job.against {
+        let piece: String = file
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default()
+            .chars()
+            .map(|c| {
+                if c.is_ascii_alphanumeric() || c == '-' || c == '_' {
+                    c
+                } else {
+                    '_'
+                }
+            })
+            .collect();
+        let piece = if piece.is_empty() {
+            "obstacle".to_string()
+        } else {
+            piece
+        };
+        let path = opts
+            .out_dir
+            .join(with_stem(stem, &format!("{piece}.{CLEARANCE_SUFFIX}")));
+        if out.contains(&path) {
+            return Err(OptionError::new(
+                OptionKey::Against,
+                format!(
+                    "two obstacle files would share the clearance map {}: give each $against file its own name",
+                    path.display()
+                ),
+            )
+            .into());
+        }
+        out.push(path);
+    }
+    Ok(out)
 }
 
 /// Every file `run` writes.
@@ -111,11 +157,33 @@ pub fn output_paths(opts: &RunOptions) -> anyhow::Result<OutputPaths> {
         opts.out_dir
             .join(exr_depth::depth_file_name(&stem, i / 2, side))
     });
-    let inputs = [&opts.generator, &opts.trajectory].map(|p| p.canonicalize().ok());
+    let inputs: Vec<Option<PathBuf>> = [&opts.generator, &opts.trajectory]
+        .into_iter()
+        .chain(&opts.job.against)
+        .map(|p| p.canonicalize().ok())
+        .collect();
     let is_input = |p: &PathBuf| {
         let real = p.canonicalize().ok();
         real.is_some() && inputs.contains(&real)
     };
+    let clearance_maps = clearance_map_paths(opts, &stem)?;
+    // Maps of an earlier run against other files: `<stem>.*.clearance.glb` in the folder.
+    let old_maps: Vec<PathBuf> = std::fs::read_dir(&opts.out_dir)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| {
+            p.file_name().and_then(|n| n.to_str()).is_some_and(|n| {
+                n.strip_prefix(&with_stem(&stem, ""))
+                    .and_then(|rest| rest.strip_suffix(CLEARANCE_SUFFIX))
+                    .is_some_and(|mid| {
+                        mid.ends_with('.') && mid.len() > 1 && !mid[..mid.len() - 1].contains('.')
+                    })
+            })
+        })
+        .filter(|p| !clearance_maps.contains(p))
+        .collect();
     let stale = (!opts.job.keep_start_mesh)
         .then(|| at(START_MESH_SUFFIX))
         .into_iter()
@@ -125,6 +193,7 @@ pub fn output_paths(opts: &RunOptions) -> anyhow::Result<OutputPaths> {
                 .filter(|f| !opts.job.also.contains(f))
                 .map(|f| at(f.suffix())),
         )
+        .chain(old_maps)
         .filter(|p| !is_input(p))
         .collect();
     Ok(OutputPaths {
@@ -133,6 +202,7 @@ pub fn output_paths(opts: &RunOptions) -> anyhow::Result<OutputPaths> {
         report: at(REPORT_SUFFIX),
         start_mesh: opts.job.keep_start_mesh.then(|| at(START_MESH_SUFFIX)),
         also: also_formats(opts).map(|f| (f, at(f.suffix()))).collect(),
+        clearance_maps,
         marker: opts
             .out_dir
             .join(format!(".{}", with_stem(&stem, INCOMPLETE_SUFFIX))),

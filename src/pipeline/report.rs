@@ -53,6 +53,9 @@ pub struct Report {
     pub outputs: Vec<PathBuf>,
     pub depth_images: DepthImagesReport,
     pub mesh: MeshReport,
+    /// With obstacles (`against`): each one's clearance from the swept volume.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub clearance: Option<crate::clearance::ClearanceSection>,
     pub warnings: Vec<String>,
 }
 

@@ -469,10 +469,21 @@ impl RunOptions {
     /// This run's job as the shard manifests record it (the inputs hashed; no backend: each
     /// shard records its own).
     pub fn spec(&self) -> anyhow::Result<JobSpec> {
+        let mut options = self.job_options(None);
+        // Obstacles are read at the merge, maybe elsewhere: absolute, as the inputs.
+        for a in &mut options.against {
+            *a = std::fs::canonicalize(&*a).map_err(|e| {
+                InputError::new(
+                    a,
+                    format!("cannot open the obstacle file: {e}"),
+                    "check the path",
+                )
+            })?;
+        }
         JobSpec::hashing(
             &self.generator,
             &self.trajectory,
-            self.job_options(None),
+            options,
             self.check_memory,
         )
     }

@@ -40,6 +40,7 @@ pub fn output_names() -> Vec<String> {
         pipeline::MESH_SUFFIX,
         pipeline::START_MESH_SUFFIX,
         pipeline::REPORT_SUFFIX,
+        pipeline::CLEARANCE_SUFFIX,
         STATUS,
     ]
     .map(String::from)
@@ -94,6 +95,7 @@ pub fn names_json() -> serde_json::Value {
             "mesh": pipeline::MESH_SUFFIX,
             "start_mesh": pipeline::START_MESH_SUFFIX,
             "report": pipeline::REPORT_SUFFIX,
+            "clearance_map": pipeline::CLEARANCE_SUFFIX,
             "status": STATUS,
             "depth_images": depth_image_names(),
             "also": also,
@@ -375,6 +377,26 @@ pub fn parse_job_options(path: &Path, bytes: &[u8]) -> Result<JobOptions, InputE
         .at_line(e.line() as u64)
         .in_column(format!("column {}", e.column()))
     })?;
+    // Obstacles are files of the job folder, by name: nothing outside the watched folder is
+    // read, and nothing that could be an output.
+    for a in &opts.against {
+        let name = a.to_str().unwrap_or_default();
+        let plain = !name.is_empty()
+            && !name.starts_with('.')
+            && !name.contains(['/', '\\'])
+            && (name.ends_with(".glb") || name.ends_with(".gltf"))
+            && !name.ends_with(".clearance.glb")
+            && !name.ends_with(".swept.glb")
+            && !name.ends_with(".start.glb");
+        if !plain {
+            return Err(InputError::new(
+                path,
+                format!("\"against\": {name:?} is not the name of an obstacle file in the job folder"),
+                "put the obstacle .glb (or .gltf) into the job folder and give its plain file name, such as \"housing.glb\" (no folder, no leading dot, not an output's name)",
+            )
+            .in_column("against"));
+        }
+    }
     if opts.resolution.is_some() && opts.tolerance.is_some() {
         return Err(InputError::new(
             path,
@@ -404,6 +426,12 @@ pub fn run_options(
         default_accuracy,
     );
     run.job.name = Some(id.stem().to_string());
+    // job.json names obstacles by file name in the job folder (checked when it was parsed).
+    run.job.against = options
+        .against
+        .iter()
+        .map(|a| id.out_dir(root).join(a))
+        .collect();
     run.overwrite = true;
     run
 }
@@ -480,10 +508,25 @@ mod tests {
                 "motion" => "\"discrete\"",
                 "classify" => "\"axes\"",
                 "radii" => "\"paper\"",
+                "against" => "[\"housing.glb\"]",
                 _ => "1",
             };
             let json = format!("{{\"{key}\": {value}}}");
             assert!(parse_job_options(p, json.as_bytes()).is_ok(), "{json}");
+        }
+        // Obstacles are plain file names of the job folder: no path out of it, no output.
+        for bad in [
+            "../x.glb",
+            "/etc/x.glb",
+            "sub/x.glb",
+            ".x.glb",
+            "x.swept.glb",
+            "x.csv",
+            "",
+        ] {
+            let json = format!("{{\"against\": [{bad:?}]}}");
+            let e = parse_job_options(p, json.as_bytes()).unwrap_err();
+            assert_eq!(e.column.as_deref(), Some("against"), "{bad}: {e}");
         }
     }
 }
