@@ -193,6 +193,7 @@ fn main() -> anyhow::Result<()> {
             spacing: None,
             all_failures: false,
             motion: Motion::Discrete,
+            relative_to: None,
         },
         &verify::Silent,
     )?;

@@ -97,10 +97,11 @@ pub enum OptionKey {
     Against,
     RequireClearance,
     ClearanceScale,
+    RelativeTo,
 }
 
 impl OptionKey {
-    pub const ALL: [OptionKey; 23] = [
+    pub const ALL: [OptionKey; 24] = [
         OptionKey::Resolution,
         OptionKey::Tolerance,
         OptionKey::Delta,
@@ -124,6 +125,7 @@ impl OptionKey {
         OptionKey::Against,
         OptionKey::RequireClearance,
         OptionKey::ClearanceScale,
+        OptionKey::RelativeTo,
     ];
 
     /// The library's name: snake_case, the same as the job.json key where there is one.
@@ -152,6 +154,7 @@ impl OptionKey {
             OptionKey::Against => "against",
             OptionKey::RequireClearance => "require_clearance",
             OptionKey::ClearanceScale => "clearance_scale",
+            OptionKey::RelativeTo => "relative_to",
         }
     }
 

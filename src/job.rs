@@ -80,6 +80,12 @@ pub struct JobOptions {
     /// [default: 10 times the stated bound].
     #[arg(long, value_name = "X", allow_negative_numbers = true)]
     pub clearance_scale: Option<f64>,
+    /// Sweep every other part in the frame of this moving node: at each row time a part's
+    /// pose is the node's pose inverted times its own, and the motion between rows is the screw
+    /// in the node's frame (rows of the node and of a part pair by their frame or time). The
+    /// outputs are in the node's frame, and the node is an obstacle.
+    #[arg(long, value_name = "NODE")]
+    pub relative_to: Option<String>,
 }
 
 /// A whole job as one file, as `cluster submit` writes it for its array tasks (`sweep --job
@@ -99,7 +105,7 @@ pub struct JobFile {
 }
 
 /// The keys of job.json: [`JobOptions`]'s fields, in order (a test holds them to the struct).
-pub const JOB_KEYS: [&str; 15] = [
+pub const JOB_KEYS: [&str; 16] = [
     "resolution",
     "tolerance",
     "delta",
@@ -115,6 +121,7 @@ pub const JOB_KEYS: [&str; 15] = [
     "against",
     "require_clearance",
     "clearance_scale",
+    "relative_to",
 ];
 
 /// An output file stem: a name, not empty and not a path.

@@ -182,6 +182,10 @@ struct VerifyArgs {
     /// to the next (verify's own interpolation and bound); or `discrete`, the listed poses.
     #[arg(long, value_enum, default_value = "screw")]
     motion: Motion,
+    /// The run's --relative-to: the mesh is in this node's frame and the other parts move
+    /// relative to it.
+    #[arg(long, value_name = "NODE")]
+    relative_to: Option<String>,
     /// Print the report as JSON on stdout (no progress bar).
     #[arg(long)]
     json: bool,
@@ -631,6 +635,7 @@ fn verify(args: VerifyArgs) -> anyhow::Result<ExitCode> {
         spacing: args.spacing,
         all_failures: args.all_failures,
         motion: args.motion,
+        relative_to: args.relative_to,
     };
     let bar = if args.quiet || args.json {
         ProgressBar::hidden()

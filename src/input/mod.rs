@@ -12,3 +12,4 @@ pub mod motion;
 pub mod outline;
 pub mod posed;
 pub mod poses;
+pub mod relative;

@@ -14,8 +14,8 @@ use crate::clearance::{
 };
 use crate::error::{InputError, OptionError, OptionKey};
 use crate::io::atomic::{self, Staged};
+use crate::io::gltf_in;
 use crate::io::gltf_out::{self, MapNode};
-use crate::io::{gltf_in, trajectory};
 use crate::verify::{bvh::Bvh, poses};
 
 /// What a clearance check is asked, beyond the mesh.
@@ -83,9 +83,13 @@ pub fn guarantee_of(report: &Report) -> Guarantee {
 }
 
 /// The parts at the listed poses of a generator and trajectory, or why they could not be read.
-pub fn parts_at_poses(generator: &Path, trajectory: &Path) -> Result<Vec<PosedPart>, String> {
-    let g = gltf_in::read_generator(generator).map_err(|e| e.to_string())?;
-    let traj = trajectory::read_trajectory(trajectory).map_err(|e| e.to_string())?;
+pub fn parts_at_poses(
+    generator: &Path,
+    trajectory: &Path,
+    relative_to: Option<&str>,
+) -> Result<Vec<PosedPart>, String> {
+    let (g, traj, _) =
+        super::read_inputs(generator, trajectory, relative_to).map_err(|e| format!("{e:#}"))?;
     let assigned = poses::assign(&g, &traj, trajectory).map_err(|e| e.to_string())?;
     Ok(g.parts
         .iter()
@@ -282,7 +286,11 @@ pub fn run(opts: &ClearanceOptions) -> anyhow::Result<ClearanceReport> {
     })?;
     let mut staged = atomic::Staged::with_marker(dir.join(format!(".{stem}.clearance.incomplete")));
     let g = guarantee_of(&report);
-    let parts = parts_at_poses(&report.inputs.generator, &report.inputs.trajectory);
+    let parts = parts_at_poses(
+        &report.inputs.generator,
+        &report.inputs.trajectory,
+        report.inputs.relative_to.as_deref(),
+    );
     let section = measure_all(&swept, &g, parts, &files, &maps, &opts.asked, &mut staged)?;
     let out = ClearanceReport {
         sweptvol_version: env!("CARGO_PKG_VERSION").into(),

@@ -172,6 +172,8 @@ pub struct Prepared {
     pub band: SimplifyOptions,
     pub classify: ClassifyPlan,
     pub warnings: Vec<String>,
+    /// With `relative_to`: the reference part, in its own frame (the frame of the outputs).
+    pub reference: Option<crate::input::model::Part>,
     /// The obstacles of each `against` file, read and checked before the sweep (empty in a
     /// shard, which measures nothing).
     pub obstacles: Vec<Vec<crate::clearance::Obstacle>>,
@@ -212,16 +214,55 @@ pub fn prepare(opts: &RunOptions) -> anyhow::Result<Prepared> {
         )
     })?;
     let mut job = build(opts, outputs)?;
-    // Obstacles are inputs too: a bad one is refused before the sweep.
-    job.obstacles = clearance::Asked::of(&opts.job).read()?;
+    // Obstacles are inputs too: a bad one is refused before the sweep. The reference of a
+    // relative motion is the first, where the outputs are: in its own frame.
+    if let Some(part) = &job.reference {
+        let own = crate::input::model::Generator {
+            parts: vec![crate::input::model::Part {
+                world: glam::DMat4::IDENTITY,
+                ..part.clone()
+            }],
+            warnings: Vec::new(),
+        };
+        job.obstacles
+            .push(crate::clearance::obstacles_of(&opts.generator, &own)?);
+    }
+    job.obstacles
+        .extend(clearance::Asked::of(&opts.job).read()?);
     Ok(job)
+}
+
+/// The generator and trajectory as the sweep takes them: with `relative_to`, the other parts
+/// in the reference node's frame, and the reference part itself
+/// ([`crate::input::relative`]).
+pub fn read_inputs(
+    generator: &std::path::Path,
+    trajectory: &std::path::Path,
+    relative_to: Option<&str>,
+) -> anyhow::Result<(
+    crate::input::model::Generator,
+    crate::input::model::Trajectory,
+    Option<crate::input::model::Part>,
+)> {
+    let g = gltf_in::read_generator(generator)?;
+    let t = trajectory::read_trajectory(trajectory)?;
+    match relative_to {
+        None => Ok((g, t, None)),
+        Some(node) => {
+            let (g, t, reference) = crate::input::relative::apply(&g, &t, trajectory, node)?;
+            Ok((g, t, Some(reference)))
+        }
+    }
 }
 
 /// [`prepare`] without looking at the outputs (a shard writes its own files).
 fn build(opts: &RunOptions, outputs: OutputPaths) -> anyhow::Result<Prepared> {
     let t0 = Instant::now();
-    let generator = gltf_in::read_generator(&opts.generator)?;
-    let traj = trajectory::read_trajectory(&opts.trajectory)?;
+    let (generator, traj, reference) = read_inputs(
+        &opts.generator,
+        &opts.trajectory,
+        opts.job.relative_to.as_deref(),
+    )?;
     for w in &generator.warnings {
         tracing::warn!("{}: {w}", opts.generator.display());
     }
@@ -257,6 +298,7 @@ fn build(opts: &RunOptions, outputs: OutputPaths) -> anyhow::Result<Prepared> {
         band,
         classify,
         warnings: generator.warnings,
+        reference,
         obstacles: Vec::new(),
         read_secs: (t1 - t0).as_secs_f64(),
         setup_secs: t1.elapsed().as_secs_f64(),
@@ -503,7 +545,11 @@ pub fn finish(job: &Prepared, swept: Swept, observer: &dyn Observer) -> anyhow::
         Some(clearance::measure_all(
             &crate::clearance::Swept::new(tris),
             &g,
-            clearance::parts_at_poses(&opts.generator, &opts.trajectory),
+            clearance::parts_at_poses(
+                &opts.generator,
+                &opts.trajectory,
+                opts.job.relative_to.as_deref(),
+            ),
             &job.obstacles,
             &job.outputs.clearance_maps,
             &clearance::Asked::of(&opts.job),
@@ -517,6 +563,7 @@ pub fn finish(job: &Prepared, swept: Swept, observer: &dyn Observer) -> anyhow::
         inputs: InputsReport {
             generator: opts.generator.clone(),
             trajectory: opts.trajectory.clone(),
+            relative_to: opts.job.relative_to.clone(),
             static_parts: input
                 .parts
                 .iter()

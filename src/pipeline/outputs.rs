@@ -106,15 +106,23 @@ impl OutputPaths {
     }
 }
 
-/// The clearance map of each `against` file: `<stem>.<file stem>.clearance.glb`, the file stem
+/// The clearance map of the `relative_to` node, then of each `against` file:
+/// `<stem>.<node name or file stem>.clearance.glb`, the name
 /// made of letters, digits, `-` and `_` (others become `_`); two files of one stem are refused.
 fn clearance_map_paths(opts: &RunOptions, stem: &str) -> anyhow::Result<Vec<PathBuf>> {
     let mut out: Vec<PathBuf> = Vec::new();
-    for file in &opts.job.against {
-        let piece: String = file
-            .file_stem()
-            .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_default()
+    let pieces = opts
+        .job
+        .relative_to
+        .iter()
+        .cloned()
+        .chain(opts.job.against.iter().map(|f| {
+            f.file_stem()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_default()
+        }));
+    for name in pieces {
+        let piece: String = name
             .chars()
             .map(|c| {
                 if c.is_ascii_alphanumeric() || c == '-' || c == '_' {
@@ -136,7 +144,7 @@ fn clearance_map_paths(opts: &RunOptions, stem: &str) -> anyhow::Result<Vec<Path
             return Err(OptionError::new(
                 OptionKey::Against,
                 format!(
-                    "two obstacle files would share the clearance map {}: give each $against file its own name",
+                    "two obstacles would share the clearance map {}: give each $against file its own name (and none the $relative_to node's)",
                     path.display()
                 ),
             )

@@ -101,6 +101,9 @@ pub struct MeshReport {
 pub struct InputsReport {
     pub generator: PathBuf,
     pub trajectory: PathBuf,
+    /// The node whose frame the outputs are in (`relative_to`); none: the world.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub relative_to: Option<String>,
     pub parts: Vec<PartRange>,
     /// Parts that no trajectory row names: included once where they stand.
     pub static_parts: Vec<String>,

@@ -83,6 +83,9 @@ pub struct VerifyOptions {
     pub all_failures: bool,
     /// Certify the screw motion between rows (the default), or only the listed poses.
     pub motion: Motion,
+    /// The run's `relative_to`: the mesh is in this node's frame, and the other parts move
+    /// relative to it (the same reading of the inputs as `run`'s, `input::relative`).
+    pub relative_to: Option<String>,
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -172,6 +175,14 @@ pub fn verify(opts: &VerifyOptions, progress: &dyn Progress) -> anyhow::Result<R
     }
     let generator = gltf_in::read_generator(&opts.generator)?;
     let traj = trajectory::read_trajectory(&opts.trajectory)?;
+    let (generator, traj) = match &opts.relative_to {
+        None => (generator, traj),
+        Some(node) => {
+            let (g, t, _) =
+                crate::input::relative::apply(&generator, &traj, &opts.trajectory, node)?;
+            (g, t)
+        }
+    };
     let mesh = gltf_in::read_world_triangles(&opts.mesh)?;
     let assigned = poses::assign(&generator, &traj, &opts.trajectory)?;
     let t1 = Instant::now();

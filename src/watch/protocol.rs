@@ -509,6 +509,7 @@ mod tests {
                 "classify" => "\"axes\"",
                 "radii" => "\"paper\"",
                 "against" => "[\"housing.glb\"]",
+                "relative_to" => "\"frame\"",
                 _ => "1",
             };
             let json = format!("{{\"{key}\": {value}}}");
