@@ -79,6 +79,12 @@ read -r bound method < <("$venv/bin/python" -c 'import json, sys; r = json.load(
 target/release/sweptvol verify --generator examples/bunny.glb --trajectory examples/bunny-vibration.csv \
     --mesh target/example-results/bunny-vibration.swept.glb --bound "$bound" --quiet
 
+say "clearance of the example's mesh from the bundled housing (examples/make_housing.py): every wall clear, the map valid glTF"
+target/release/sweptvol clearance --mesh target/example-results/bunny-vibration.swept.glb \
+    --report target/example-results/bunny-vibration.report.json --against examples/bunny-housing.glb \
+    --require-clearance 0.2 --overwrite
+node tools/gltf-validator/validate.mjs target/example-results/bunny-vibration.bunny-housing.clearance.glb
+
 say "Blender add-on: exchange, daemon control, version handling, names vs the binary's (pytest, no Blender)"
 "$venv/bin/python" -m pytest -q -p no:cacheprovider blender_addon/tests/test_exchange.py \
     blender_addon/tests/test_compat.py blender_addon/tests/test_daemon.py blender_addon/tests/test_sampling.py \

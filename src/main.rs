@@ -436,7 +436,9 @@ fn run(args: RunArgs) -> anyhow::Result<ExitCode> {
     observer.bar.finish_and_clear();
     log_done(&report, &opts.out_dir);
     Ok(report.clearance.as_ref().map_or(ExitCode::SUCCESS, |c| {
-        let _ = say_clearance(c);
+        if !args.quiet {
+            let _ = say_clearance(c);
+        }
         clearance_exit(c)
     }))
 }
