@@ -255,6 +255,7 @@ JOB_JSON = "job.json"
 CANCEL = "cancel"
 # The add-on's own record of its adaptive sampling (sampling.py): the daemon never reads it.
 SAMPLING = "sampling.json"
+OBSTACLES_GLB = "obstacles.glb"  # the add-on's obstacle objects, one node each (job.json `against`)
 
 # What the daemon writes there
 MESH = "swept.glb"
@@ -453,4 +454,82 @@ def result_summary(report, sampling=None):
             value = [v for v in value]
         if value is not None:
             out[key] = value
+    return out
+
+
+def read_clearance_map(path):
+    """The obstacles of a clearance map (NAME.clearance.glb), in glTF world space: a list of
+    {"name", "points", "tris", "values" (the clearance's lower end per vertex), "colours",
+    "closest" ((on the obstacle, on the swept volume) or None), "extras"}."""
+    doc, binary = read_glb(path)
+    out = []
+    nodes = doc.get("nodes", [])
+    for node, world in _mesh_nodes(doc):
+        mesh = doc["meshes"][node["mesh"]]
+        prims = [p for p in mesh.get("primitives", []) if p.get("mode", 4) == 4]
+        if not prims or "_CLEARANCE" not in prims[0].get("attributes", {}):
+            continue
+        prim = prims[0]
+        attrs = prim["attributes"]
+        pos = [transform_point(world, p) for p in _accessor(doc, binary, attrs["POSITION"])]
+        idx = [i[0] for i in _accessor(doc, binary, prim["indices"])]
+        closest = None
+        for child in node.get("children", []):
+            line = doc["meshes"][nodes[child]["mesh"]]["primitives"][0]
+            ends = _accessor(doc, binary, line["attributes"]["POSITION"])
+            if len(ends) == 2:
+                closest = (transform_point(world, ends[0]), transform_point(world, ends[1]))
+        out.append({
+            "name": node.get("name", ""),
+            "points": pos,
+            "tris": [tuple(idx[k:k + 3]) for k in range(0, len(idx) - 2, 3)],
+            "values": [v[0] for v in _accessor(doc, binary, attrs["_CLEARANCE"])],
+            "colours": [tuple(c[:3]) for c in _accessor(doc, binary, attrs["COLOR_0"])],
+            "closest": closest,
+            "extras": node.get("extras", {}),
+        })
+    return out
+
+
+VERDICT_WORDS = {"clear": "clear", "possible-contact": "possible contact", "contact": "CONTACT"}
+
+
+def frames_by_line(csv_text):
+    """{CSV line number: frame} of a trajectory.csv the add-on wrote (frame first)."""
+    out = {}
+    for number, text in enumerate(csv_text.splitlines(), start=1):
+        head = text.split(",", 1)[0]
+        try:
+            out[number] = float(head)
+        except ValueError:
+            continue
+    return out
+
+
+def clearance_lines(report, frames=None):
+    """One entry per obstacle of the report's clearance section: {"name", "verdict", "lower",
+    "upper", "map", "line"} with `line` the panel's text, and the contacts first. `frames`
+    ({CSV line: frame}, `frames_by_line`) names a contact's frame."""
+    section = (report or {}).get("clearance") or {}
+    out = []
+    for o in section.get("obstacles", []):
+        verdict = o.get("verdict", "")
+        lower, upper = o.get("lower"), o.get("upper")
+        upper_text = "unknown" if upper is None else f"{upper:.4g}"
+        line = f"{o.get('name', '')}: {VERDICT_WORDS.get(verdict, verdict)}"
+        if verdict == "contact":
+            w = o.get("witness") or {}
+            frame = (frames or {}).get(w.get("line"))
+            if frame is not None:
+                at = f" at frame {frame:g}"
+            elif w.get("line") is not None:
+                at = f" at trajectory line {w['line']}"
+            else:
+                at = ""
+            line += f" ({w.get('part', 'the part')} {w.get('how', 'meets it')}{at})"
+        else:
+            line += f", clearance {lower:.4g} to {upper_text}"
+        out.append({"name": o.get("name", ""), "verdict": verdict, "lower": lower,
+                    "upper": upper, "map": o.get("map", ""), "line": line})
+    out.sort(key=lambda e: e["verdict"] != "contact")
     return out

@@ -15,6 +15,9 @@ from . import compat, daemon, exchange, prefs, sampling
 
 COLLECTION = "Swept Volumes"
 MATERIAL = "sweptvol swept volume"
+MAP_MATERIAL = "sweptvol clearance"
+MAP_VALUES = "clearance"  # per vertex: the clearance's guaranteed lower end (scene units)
+MAP_COLOURS = "clearance colour"
 POLL_SECONDS = 0.5
 
 # Jobs submitted in this session: dicts with dir, label, sources, scene, line, state, imported.
@@ -198,10 +201,26 @@ def export_generator(context, objects, path):
         view_layer.objects.active = old_active
 
 
-def submit(context, objects, frames, options, halvings=sampling.DEFAULT_HALVINGS):
+def submit(context, objects, frames, options, halvings=sampling.DEFAULT_HALVINGS,
+           obstacles=(), reference=None):
     """Sample (and refine), export, write rows, job.json and the sampling record, commit.
+    `obstacles` (objects) are exported as obstacles.glb and measured against the result
+    (job.json `against`); with a `reference` object every other object is swept in its frame
+    (`relative_to`): it is exported and sampled with them, each at every frame any has.
     Returns (job folder, sampling record or None). Raises on error (ValueError for the user's
     data, OSError for the folder)."""
+    both = sorted({o.name for o in objects} & {o.name for o in obstacles})
+    if both:
+        raise ValueError(f"{', '.join(both)}: an object cannot be both swept and an obstacle "
+                         "(remove it from the selection or from the Obstacles collection)")
+    if reference is not None:
+        if reference.name in {o.name for o in obstacles}:
+            raise ValueError(f"'{reference.name}' is the reference, which is an obstacle already: "
+                             "remove it from the Obstacles collection")
+        objects = [o for o in objects if o.name != reference.name] + [reference]
+        if len(objects) < 2:
+            raise ValueError("select the objects to sweep relative to the reference, besides it")
+        options = dict(options, relative_to=reference.name)
     p = prefs.get(context)
     folder = prefs.watch_folder(p)
     if not folder:
@@ -212,6 +231,11 @@ def submit(context, objects, frames, options, halvings=sampling.DEFAULT_HALVINGS
     partial = None
     try:
         object_frames, placements, record = sample(context, objects, frames, options, halvings)
+        if reference is not None:
+            # Relative rows pair by time: every object at every frame any of them has (the
+            # refinement evaluated every object at each of them).
+            union = sorted({f for fs in object_frames.values() for f in fs})
+            object_frames = {name: union for name in object_frames}
         label = "+".join(o.name for o in objects)
         name = exchange.job_name(label, folder)
         partial = exchange.begin_job(folder, name)
@@ -219,6 +243,9 @@ def submit(context, objects, frames, options, halvings=sampling.DEFAULT_HALVINGS
         set_frame(scene, frames[0])
         glb = os.path.join(partial, exchange.GENERATOR_GLB)
         export_generator(context, objects, glb)
+        if obstacles:
+            export_generator(context, list(obstacles), os.path.join(partial, exchange.OBSTACLES_GLB))
+            options = dict(options, against=[exchange.OBSTACLES_GLB])
         doc, _ = exchange.read_glb(glb)
         placed = {}
         for node_name, w in exchange.mesh_node_worlds(doc):
@@ -303,7 +330,102 @@ def import_result(job_dir, scene=None, label=None):
         obj[key] = value
     obj["sweptvol_job"] = job_dir
     obj["sweptvol_sources"] = label
+    reference = _reference(report)
+    if reference is not None:
+        _attach(obj, reference)
+    import_clearance(report, coll, reference)
     return obj
+
+
+def _reference(report):
+    """The object whose frame a relative job's outputs are in, or None."""
+    name = ((report or {}).get("inputs") or {}).get("relative_to")
+    return bpy.data.objects.get(name) if name else None
+
+
+def _attach(obj, reference):
+    """Make `obj` (in the reference's local frame) follow the reference."""
+    obj.parent = reference
+    obj.matrix_parent_inverse.identity()
+    obj.matrix_basis.identity()
+
+
+def _map_material():
+    """A material that shows the clearance map's colour attribute (Color Attribute node)."""
+    mat = bpy.data.materials.get(MAP_MATERIAL)
+    if mat is None:
+        mat = bpy.data.materials.new(MAP_MATERIAL)
+        if mat.node_tree is None:
+            mat.use_nodes = True
+        nodes, links = mat.node_tree.nodes, mat.node_tree.links
+        bsdf = nodes.get("Principled BSDF")
+        attr = nodes.new("ShaderNodeAttribute")
+        attr.attribute_name = MAP_COLOURS
+        attr.location = (-300, 300)
+        if bsdf is not None:
+            links.new(attr.outputs["Color"], bsdf.inputs["Base Color"])
+    return mat
+
+
+def _replace(coll, name, data):
+    """The object `name` in `coll` with new `data` (an earlier import's replaced), linked."""
+    obj = coll.objects.get(name)
+    if obj is not None and obj.type == ("MESH" if data is not None else "EMPTY"):
+        if data is not None:
+            old = obj.data
+            obj.data = data
+            if old.users == 0:
+                bpy.data.meshes.remove(old)
+        return obj
+    obj = bpy.data.objects.new(name, data)
+    coll.objects.link(obj)
+    return obj
+
+
+def import_clearance(report, coll, reference=None):
+    """Each obstacle's clearance map as an object `NAME clearance` (the lower end of the
+    clearance per vertex in the attribute `clearance`, its colour in `clearance colour`, shown by
+    the material) and an empty `NAME closest point` at the obstacle's point nearest the swept
+    volume; verdict and interval as custom properties. Returns the objects made."""
+    made = []
+    seen = set()
+    by_name = {e["name"]: e for e in exchange.clearance_lines(report)}
+    for entry in ((report or {}).get("clearance") or {}).get("obstacles", []):
+        path = entry.get("map")
+        if not path or path in seen or not os.path.isfile(path):
+            continue
+        seen.add(path)
+        for o in exchange.read_clearance_map(path):
+            name = f"{o['name']} clearance"[:63]
+            mesh = bpy.data.meshes.new(name)
+            mesh.from_pydata([exchange.gltf_point_to_blender(p) for p in o["points"]], [], o["tris"])
+            mesh.update()
+            values = mesh.attributes.new(MAP_VALUES, "FLOAT", "POINT")
+            values.data.foreach_set("value", [float(v) for v in o["values"]])
+            colours = mesh.color_attributes.new(MAP_COLOURS, "FLOAT_COLOR", "POINT")
+            colours.data.foreach_set("color", [x for c in o["colours"] for x in (*c, 1.0)])
+            mesh.materials.append(_map_material())
+            obj = _replace(coll, name, mesh)
+            line = by_name.get(o["name"], {})
+            for key, value in (("sweptvol_verdict", line.get("verdict")),
+                               ("sweptvol_clearance_lower", line.get("lower")),
+                               ("sweptvol_clearance_upper", line.get("upper")),
+                               ("sweptvol_clearance", line.get("line"))):
+                if value is not None:
+                    obj[key] = value
+            made.append(obj)
+            if o["closest"] is not None:
+                marker = _replace(coll, f"{o['name']} closest point"[:63], None)
+                marker.empty_display_type = "SPHERE"
+                marker.empty_display_size = 0.02 * max(obj.dimensions) if max(obj.dimensions) > 0 else 0.05
+                marker.location = exchange.gltf_point_to_blender(o["closest"][0])
+                made.append(marker)
+            if reference is not None:
+                for m in made[-2:] if o["closest"] is not None else made[-1:]:
+                    location = tuple(m.location)
+                    _attach(m, reference)
+                    m.location = location
+    return made
 
 
 def depth_images(job_dir):
@@ -387,6 +509,16 @@ def update_job(job):
             job["imported"] = obj.name
             job["line"] = f"done: imported '{obj.name}'"
             _report("INFO", f"swept volume of {job['label']} imported as '{obj.name}'")
+            try:
+                with open(os.path.join(job["dir"], exchange.TRAJECTORY), encoding="utf-8") as f:
+                    frames = exchange.frames_by_line(f.read())
+            except OSError:
+                frames = None
+            job["clearance"] = exchange.clearance_lines(exchange.read_report(job["dir"]), frames)
+            contacts = [e["line"] for e in job["clearance"] if e["verdict"] == "contact"]
+            if contacts:
+                job["line"] += f"; {len(contacts)} CONTACT(S)"
+                _report("ERROR", "sweptvol found a certain contact: " + "; ".join(contacts))
         except Exception as e:  # noqa: BLE001 (any failure must reach the panel, worded)
             job["state"] = "failed"
             job["error"] = f"importing the swept volume failed: {type(e).__name__}: {_one_line(e)}"
@@ -470,12 +602,18 @@ class SWEPTVOL_OT_compute(bpy.types.Operator):
             return {"CANCELLED"}
         p = prefs.get(context)
         options = {"backend": p.backend, "motion": settings.motion}
+        obstacles = []
+        if settings.obstacles is not None:
+            obstacles = [o for o in settings.obstacles.all_objects if o.type == "MESH"]
+        if settings.use_require_clearance:
+            options["require_clearance"] = float(settings.require_clearance)
         if settings.accuracy == "TOLERANCE":
             options["tolerance"] = float(settings.tolerance)
         else:
             options["resolution"] = int(settings.resolution)
         try:
-            job_dir, record = submit(context, objects, frames, options, settings.halvings)
+            job_dir, record = submit(context, objects, frames, options, settings.halvings,
+                                     obstacles, settings.reference)
         except (ValueError, OSError, RuntimeError) as e:  # the user's data, the folder, export
             self.report({"ERROR"}, _one_line(e))
             return {"CANCELLED"}

@@ -36,6 +36,20 @@ class SweptvolSettings(bpy.types.PropertyGroup):
     resolution: bpy.props.IntProperty(
         name="Resolution", description="Voxels along the longest grid edge", default=256,
         min=8, max=4096)
+    obstacles: bpy.props.PointerProperty(
+        name="Obstacles", type=bpy.types.Collection,
+        description="Mesh objects of this collection are obstacles: each gets a guaranteed "
+        "clearance interval, a verdict and a clearance map")
+    reference: bpy.props.PointerProperty(
+        name="Relative to", type=bpy.types.Object, poll=lambda self, o: o.type == "MESH",
+        description="Sweep the selected objects in the frame of this moving object (it is an "
+        "obstacle too); the results follow it")
+    use_require_clearance: bpy.props.BoolProperty(
+        name="Require clearance", description="Mark the job when an obstacle may come closer",
+        default=False)
+    require_clearance: bpy.props.FloatProperty(
+        name="Clearance", description="The least clearance every obstacle must keep",
+        default=0.0, min=0.0, subtype="DISTANCE", unit="LENGTH", precision=4)
 
 
 class SWEPTVOL_PT_panel(bpy.types.Panel):
@@ -71,6 +85,14 @@ class SWEPTVOL_PT_panel(bpy.types.Panel):
         layout.prop(s, "motion")
         if s.motion == "screw":
             layout.prop(s, "halvings")
+        col = layout.column(align=True)
+        col.prop(s, "obstacles")
+        col.prop(s, "reference")
+        row = col.row(align=True)
+        row.prop(s, "use_require_clearance", text="")
+        sub = row.row()
+        sub.enabled = s.use_require_clearance
+        sub.prop(s, "require_clearance", text="Require clearance")
         row = layout.row()
         row.scale_y = 1.4
         row.operator("sweptvol.compute", icon="MOD_SOLIDIFY")
@@ -86,6 +108,9 @@ class SWEPTVOL_PT_panel(bpy.types.Panel):
             box = layout.box()
             icon = "CHECKMARK" if done["state"] == "done" else "ERROR"
             box.label(text=f"{done['label']}: {done['line']}", icon=icon)
+            icons = {"contact": "ERROR", "possible-contact": "QUESTION", "clear": "CHECKMARK"}
+            for entry in done.get("clearance", []):
+                box.label(text=entry["line"], icon=icons.get(entry["verdict"], "INFO"))
             if done["state"] == "done":
                 row = box.row(align=True)
                 row.operator("sweptvol.import_result", text="Re-import").job = done["dir"]

@@ -387,6 +387,105 @@ def continuous_motion(scene, settings, operators, exchange, coll):
         bpy.data.objects.remove(o)
 
 
+def clearance(scene, settings, operators, exchange, coll, part, bar, posed_tris):
+    """Obstacles from a collection: the clearance map comes back as objects with the per-vertex
+    lower end readable and shown by a material, a closest-point marker, and the verdict as
+    properties; every lower end is at most the vertex's true distance from the posed objects
+    (`posed_tris`, at every sampled frame). A block through the part is a certain contact, in
+    the job's line. Relative to Bar, the result follows Bar."""
+    # The frames of section 3 (`posed_tris` holds the objects at each): the swept volume holds
+    # the objects at every one of them, so its true distance from a point is at most theirs.
+    settings.use_scene_range = False
+    settings.frame_start, settings.frame_end, settings.frame_step = FRAMES
+    settings.accuracy, settings.resolution = "RESOLUTION", args.resolution
+    settings.motion, settings.halvings = "screw", 6
+    obstacles = bpy.data.collections.new("Obstacles")
+    scene.collection.children.link(obstacles)
+    bpy.ops.mesh.primitive_grid_add(x_subdivisions=16, y_subdivisions=16, size=6.0,
+                                    location=(0, 0, -1.6))
+    floor = bpy.context.active_object
+    floor.name = "Floor"
+    for c in list(floor.users_collection):
+        c.objects.unlink(floor)
+    obstacles.objects.link(floor)
+    settings.obstacles = obstacles
+    select([part, bar])
+    check(bpy.ops.sweptvol.compute(wait=True, timeout=400) == {"FINISHED"}, "compute with obstacles")
+    job = operators.JOBS[-1]
+    maps = [o for o in coll.objects if o.name == "Floor clearance"]
+    check(len(maps) == 1, f"no 'Floor clearance' object: {[o.name for o in coll.objects]}")
+    m = maps[0]
+    attr = m.data.attributes.get("clearance")
+    check(attr is not None and attr.domain == "POINT" and len(attr.data) == len(m.data.vertices),
+          "the clearance attribute is missing or not per vertex")
+    values = np.empty(len(attr.data))
+    attr.data.foreach_get("value", values)
+    colours = m.data.color_attributes.get("clearance colour")
+    check(colours is not None, "no 'clearance colour' attribute")
+    rgba = np.empty(len(colours.data) * 4)
+    colours.data.foreach_get("color", rgba)
+    rgba = rgba.reshape(-1, 4)
+    mat = m.data.materials[0]
+    shows = any(n.bl_idname == "ShaderNodeAttribute" and n.attribute_name == "clearance colour"
+                and n.outputs["Color"].is_linked for n in mat.node_tree.nodes)
+    check(shows, "the clearance material does not show the colour attribute")
+    verdict = m.get("sweptvol_verdict")
+    check(verdict in ("clear", "possible-contact"), f"floor verdict {verdict}")
+    lower = float(m["sweptvol_clearance_lower"])
+    check(np.isfinite(values).all() and values.min() >= lower - 1e-6,
+          f"lower ends {values.min()}..{values.max()}, the obstacle's {lower}")
+    fv, _ = world_mesh(m)
+    truth = point_triangle_distance(fv, posed_tris)
+    check((values <= truth + 1e-4).all(),
+          f"a lower end exceeds the true distance: {float((values - truth).max())}")
+    check(rgba[:, :3].min() >= 0 and rgba[:, 3].min() == 1.0 and np.ptp(rgba[:, 1]) > 0,
+          "the colours do not vary over the obstacle")
+    check(bpy.data.objects.get("Floor closest point") is not None, "no closest-point marker")
+    log(f"clearance map: Floor {verdict}, lower ends {values.min():.4g}..{values.max():.4g} "
+        f"(true {truth.min():.4g}..), interval [{lower:.4g}, {m['sweptvol_clearance_upper']:.4g}]")
+
+    # A block through the part at frame 1: a certain contact, said in the job's line.
+    bpy.ops.mesh.primitive_cube_add(size=0.3, location=(0.4, 0, 0))
+    pin = bpy.context.active_object
+    pin.name = "Pin"
+    for c in list(pin.users_collection):
+        c.objects.unlink(pin)
+    obstacles.objects.link(pin)
+    select([part])
+    check(bpy.ops.sweptvol.compute(wait=True, timeout=400) == {"FINISHED"}, "compute with the pin")
+    job = operators.JOBS[-1]
+    first = (job.get("clearance") or [{}])[0]
+    check(first.get("verdict") == "contact" and first.get("name") == "Pin" and "CONTACT" in job["line"],
+          f"no certain contact with Pin: {job.get('clearance')} / {job['line']}")
+    pin_map = bpy.data.objects.get("Pin clearance")
+    check(pin_map is not None and pin_map.get("sweptvol_verdict") == "contact",
+          "the Pin's map does not say contact")
+    log(f"contact: {first['line']}; job line: {job['line']}")
+
+    # Relative to Bar: the result is parented to Bar, and in Bar's frame.
+    settings.obstacles = None
+    settings.reference = bar
+    select([part])
+    check(bpy.ops.sweptvol.compute(wait=True, timeout=400) == {"FINISHED"}, "compute relative to Bar")
+    job = operators.JOBS[-1]
+    job_json = json.load(open(os.path.join(job["dir"], exchange.JOB_JSON)))
+    check(job_json.get("relative_to") == bar.name, f"job.json {job_json}")
+    swept = bpy.data.objects.get(f"{job['label']} swept volume")
+    check(swept is not None and swept.parent == bar, f"the relative result does not follow Bar: {swept}")
+    sv, swept_tris = world_mesh(swept)
+    start, end, step = FRAMES
+    for f in (start, (start + end) / 2, end):  # the part at a sampled frame is inside, seen in the world
+        scene.frame_set(int(math.floor(f)), subframe=f - math.floor(f))
+        sv, swept_tris = world_mesh(swept)
+        verts, _ = world_mesh(part)
+        wn = winding_numbers(verts, swept_tris)
+        check(wn.min() >= 0.5, f"relative: the part at frame {f} leaves the result (winding {wn.min()})")
+    scene.frame_set(1)
+    check(bpy.data.objects.get(f"{bar.name} clearance") is not None, "no clearance map of the reference")
+    settings.reference = None
+    log("relative to Bar: the result follows Bar and holds the part at frames 1, 5, 9")
+
+
 def main(state):
     # ---------------------------------------------------------------------------------------------
     # Install and configure the add-on from the zip, in the fresh profile
@@ -604,6 +703,11 @@ def main(state):
     # 4c. Continuous motion: between the samples the imported result encloses the object
 
     continuous_motion(scene, settings, operators, exchange, coll)
+
+    # ---------------------------------------------------------------------------------------------
+    # 4d. Clearance: obstacles, a contact, motion relative to another object
+
+    clearance(scene, settings, operators, exchange, coll, part, bar, all_tris)
 
     # ---------------------------------------------------------------------------------------------
     # 5. Cancel: a big job submitted without waiting, cancelled, ends `cancelled`

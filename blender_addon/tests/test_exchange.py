@@ -303,3 +303,49 @@ def test_manifest_and_bl_info_agree():
                    if isinstance(n, ast.Assign) and getattr(n.targets[0], "id", "") == "bl_info")
     assert ".".join(map(str, bl_info["version"])) == manifest["version"]
     assert bl_info["blender"] <= (3, 4, 0)
+
+
+def test_clearance_maps_read_back_as_the_binary_writes_them(tmp_path, sweptvol_bin):
+    """A real run with the bundled housing: the add-on reads every obstacle of the map with its
+    per-vertex lower ends, colours and closest points, and words each verdict for the panel."""
+    import subprocess
+
+    repo = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", ".."))
+    out = tmp_path / "out"
+    run = subprocess.run(
+        [sweptvol_bin, "run", "--generator", os.path.join(repo, "examples", "bunny.glb"),
+         "--trajectory", os.path.join(repo, "examples", "bunny-vibration.csv"),
+         "--out", str(out), "--resolution", "48", "--backend", "cpu", "--quiet",
+         "--motion", "discrete", "--against", os.path.join(repo, "examples", "bunny-housing.glb")],
+        capture_output=True, text=True, check=False)
+    assert run.returncode == 0, run.stderr
+    report = json.loads((out / "bunny-vibration.report.json").read_text())
+    obstacles = ex.read_clearance_map(str(out / "bunny-vibration.bunny-housing.clearance.glb"))
+    names = [o["name"] for o in obstacles]
+    assert names == ["floor", "wall-west", "wall-east", "wall-north", "wall-south"]
+    for o, r in zip(obstacles, report["clearance"]["obstacles"], strict=True):
+        assert len(o["values"]) == len(o["points"]) == len(o["colours"]) > 0
+        assert min(o["values"]) >= r["lower"] - 1e-6  # no vertex below the obstacle's lower end
+        assert o["closest"] is not None and o["extras"]["sweptvol_verdict"] == r["verdict"]
+    lines = ex.clearance_lines(report)
+    assert [e["name"] for e in lines] == names  # no contact: the report's order
+    first = report["clearance"]["obstacles"][0]
+    assert lines[0]["line"] == (f"floor: {ex.VERDICT_WORDS[first['verdict']]}, clearance "
+                                f"{first['lower']:.4g} to {first['upper']:.4g}")
+
+
+def test_clearance_lines_put_contacts_first_and_name_the_witness():
+    report = {"clearance": {"obstacles": [
+        {"name": "wall", "verdict": "clear", "lower": 0.5, "upper": 0.8, "map": "m"},
+        {"name": "pin", "verdict": "contact", "lower": 0.0, "upper": 0.0, "map": "m",
+         "witness": {"part": "Arm", "row": 3, "line": 5, "how": "triangles cross"}},
+        {"name": "lid", "verdict": "possible-contact", "lower": 0.0, "upper": None, "map": "m"},
+    ]}}
+    lines = ex.clearance_lines(report)
+    assert [e["name"] for e in lines] == ["pin", "wall", "lid"]
+    assert lines[0]["line"] == "pin: CONTACT (Arm triangles cross at trajectory line 5)"
+    frames = ex.frames_by_line("frame,node,m00\n1,Arm,1\n1.5,Arm,1\n2,Arm,1\n2.5,Arm,1\n")
+    assert frames == {2: 1.0, 3: 1.5, 4: 2.0, 5: 2.5}
+    assert ex.clearance_lines(report, frames)[0]["line"] == "pin: CONTACT (Arm triangles cross at frame 2.5)"
+    assert lines[2]["line"] == "lid: possible contact, clearance 0 to unknown"
+    assert ex.clearance_lines({}) == []
