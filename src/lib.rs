@@ -27,9 +27,11 @@
 //!   [`watch`] and `main.rs` are its shells, and [`cluster`] runs it on SLURM in shards.
 //! - [`verify`]: an independent certificate for any swept-volume mesh.
 //! - [`clearance`]: how far the swept volume stays from obstacles, as a guaranteed interval
-//!   (`pipeline::clearance` runs it on files).
+//!   (`pipeline::clearance` runs it on files); [`closest`], the exact closest points it shares
+//!   with the simplifier.
 
 pub mod clearance;
+pub mod closest;
 pub mod cluster;
 pub mod depth;
 pub mod error;

@@ -23,20 +23,7 @@ fn slab(lo: [f64; 3], hi: [f64; 3]) -> Generator {
     let pos: Vec<[f32; 3]> = (0..8)
         .map(|k| std::array::from_fn(|a| (if k >> a & 1 == 1 { hi[a] } else { lo[a] }) as f32))
         .collect();
-    let tris = vec![
-        [0, 2, 1],
-        [1, 2, 3],
-        [4, 5, 6],
-        [5, 7, 6],
-        [0, 1, 4],
-        [1, 5, 4],
-        [2, 6, 3],
-        [3, 6, 7],
-        [0, 4, 2],
-        [2, 4, 6],
-        [1, 3, 5],
-        [3, 7, 5],
-    ];
+    let tris = common::BOX_TRIANGLES.to_vec();
     generator(pos, tris)
 }
 

@@ -7,36 +7,9 @@ mod common;
 use std::fs;
 use std::path::{Path, PathBuf};
 
+use common::box_mesh;
 use common::files::{glb, glb_parts, run_args, sweptvol, write};
 use serde_json::Value;
-
-/// A closed box [lo, hi] as positions and outward-wound triangles.
-fn box_mesh(lo: [f32; 3], hi: [f32; 3]) -> (Vec<[f32; 3]>, Vec<[u32; 3]>) {
-    let p: Vec<[f32; 3]> = (0..8)
-        .map(|i| {
-            [
-                if i & 1 == 0 { lo[0] } else { hi[0] },
-                if i & 2 == 0 { lo[1] } else { hi[1] },
-                if i & 4 == 0 { lo[2] } else { hi[2] },
-            ]
-        })
-        .collect();
-    let t = vec![
-        [0, 2, 1],
-        [1, 2, 3],
-        [4, 5, 6],
-        [5, 7, 6],
-        [0, 1, 4],
-        [1, 5, 4],
-        [2, 6, 3],
-        [3, 6, 7],
-        [0, 4, 2],
-        [2, 4, 6],
-        [1, 3, 5],
-        [3, 7, 5],
-    ];
-    (p, t)
-}
 
 /// An open square plate x = x0 (a plane piece facing -x), spanning `half` in y and z.
 fn plate_x(x0: f32, half: f32) -> (Vec<[f32; 3]>, Vec<[u32; 3]>) {
@@ -73,6 +46,14 @@ fn sweep_and_measure(
     let out = dir.join("out");
     let r = sweptvol(&run_args(&g, &t, &out, run_extra));
     assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let c = sweptvol(&clearance_args(&out, &o, &[&["--json"], extra].concat()));
+    let stderr = String::from_utf8_lossy(&c.stderr).into_owned();
+    let v = serde_json::from_slice(&c.stdout).unwrap_or(Value::Null);
+    (v, c.status.code().unwrap_or(-1), stderr)
+}
+
+/// `sweptvol clearance` of `out/part.swept.glb` (and its report) against `obstacle`, then `extra`.
+fn clearance_args(out: &Path, obstacle: &Path, extra: &[&str]) -> Vec<String> {
     let mut args: Vec<String> = [
         "clearance",
         "--mesh",
@@ -80,16 +61,12 @@ fn sweep_and_measure(
         "--report",
         out.join("part.report.json").to_str().unwrap(),
         "--against",
-        o.to_str().unwrap(),
-        "--json",
+        obstacle.to_str().unwrap(),
     ]
     .map(String::from)
     .to_vec();
     args.extend(extra.iter().map(|s| s.to_string()));
-    let c = sweptvol(&args);
-    let stderr = String::from_utf8_lossy(&c.stderr).into_owned();
-    let v = serde_json::from_slice(&c.stdout).unwrap_or(Value::Null);
-    (v, c.status.code().unwrap_or(-1), stderr)
+    args
 }
 
 fn interval(o: &Value) -> (f64, f64) {
@@ -304,15 +281,11 @@ fn the_clearance_map_holds_a_lower_end_per_vertex() {
         "{nodes:?}"
     );
     // Nothing is overwritten without being asked.
-    let again = sweptvol(&[
-        "clearance",
-        "--mesh",
-        tmp.path().join("out/part.swept.glb").to_str().unwrap(),
-        "--report",
-        tmp.path().join("out/part.report.json").to_str().unwrap(),
-        "--against",
-        tmp.path().join("obstacle.glb").to_str().unwrap(),
-    ]);
+    let again = sweptvol(&clearance_args(
+        &tmp.path().join("out"),
+        &tmp.path().join("obstacle.glb"),
+        &[],
+    ));
     assert_eq!(again.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&again.stderr).contains("--overwrite"));
 }
@@ -361,19 +334,7 @@ fn bad_obstacles_and_options_are_refused_by_name() {
         ),
     ];
     for (obstacle, extra, named) in cases {
-        let mut args: Vec<String> = [
-            "clearance",
-            "--mesh",
-            out.join("part.swept.glb").to_str().unwrap(),
-            "--report",
-            out.join("part.report.json").to_str().unwrap(),
-            "--against",
-            obstacle.to_str().unwrap(),
-        ]
-        .map(String::from)
-        .to_vec();
-        args.extend(extra.iter().map(|s| s.to_string()));
-        let r = sweptvol(&args);
+        let r = sweptvol(&clearance_args(&out, &obstacle, &extra));
         let err = String::from_utf8_lossy(&r.stderr);
         assert_eq!(r.status.code(), Some(2), "{named}: {err}");
         assert!(err.contains(named), "{named} not named: {err}");

@@ -52,20 +52,7 @@ fn boxes_generator(boxes: &[Box3]) -> Generator {
                 (if k >> a & 1 == 1 { hi[a] } else { lo[a] }) as f32
             }));
         }
-        for t in [
-            [0, 2, 1],
-            [1, 2, 3],
-            [4, 5, 6],
-            [5, 7, 6],
-            [0, 1, 4],
-            [1, 5, 4],
-            [2, 6, 3],
-            [3, 6, 7],
-            [0, 4, 2],
-            [2, 4, 6],
-            [1, 3, 5],
-            [3, 7, 5],
-        ] {
+        for t in common::BOX_TRIANGLES {
             tris.push(t.map(|i| base + i));
         }
     }

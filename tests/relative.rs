@@ -7,36 +7,9 @@ mod common;
 use std::fs;
 use std::path::Path;
 
+use common::box_mesh;
 use common::files::{glb_parts, run_args, sweptvol, verify_args, write};
 use serde_json::Value;
-
-/// A closed box [lo, hi], outward-wound.
-fn box_mesh(lo: [f32; 3], hi: [f32; 3]) -> (Vec<[f32; 3]>, Vec<[u32; 3]>) {
-    let p: Vec<[f32; 3]> = (0..8)
-        .map(|i| {
-            [
-                if i & 1 == 0 { lo[0] } else { hi[0] },
-                if i & 2 == 0 { lo[1] } else { hi[1] },
-                if i & 4 == 0 { lo[2] } else { hi[2] },
-            ]
-        })
-        .collect();
-    let t = vec![
-        [0, 2, 1],
-        [1, 2, 3],
-        [4, 5, 6],
-        [5, 7, 6],
-        [0, 1, 4],
-        [1, 5, 4],
-        [2, 6, 3],
-        [3, 6, 7],
-        [0, 4, 2],
-        [2, 4, 6],
-        [1, 3, 5],
-        [3, 7, 5],
-    ];
-    (p, t)
-}
 
 /// The base at x in [-3, -2], the arm at x in [0, 1] (unit boxes), as two nodes.
 fn base_and_arm(dir: &Path) -> std::path::PathBuf {

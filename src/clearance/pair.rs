@@ -8,6 +8,7 @@ use std::sync::Mutex;
 use glam::{DMat4, DVec3};
 use rayon::prelude::*;
 
+use crate::closest::{closest_on_triangle, closest_segments};
 use crate::verify::bvh::{Bvh, Node};
 use crate::verify::geom;
 
@@ -20,89 +21,6 @@ pub struct Nearest {
     pub b_tri: u32,
     pub a_point: DVec3,
     pub b_point: DVec3,
-}
-
-/// The point of the closed triangle [a, b, c] nearest to `p` (Ericson, Real-Time Collision
-/// Detection 5.1.5, by Voronoi regions; a degenerate triangle falls back to its edges).
-pub fn closest_on_triangle(p: DVec3, a: DVec3, b: DVec3, c: DVec3) -> DVec3 {
-    let (ab, ac, ap) = (b - a, c - a, p - a);
-    if ab.cross(ac).length_squared() == 0.0 {
-        return [(a, b), (b, c), (c, a)]
-            .map(|(s, t)| closest_on_segment(p, s, t))
-            .into_iter()
-            .min_by(|x, y| (*x - p).length().total_cmp(&(*y - p).length()))
-            .expect("three edges");
-    }
-    let (d1, d2) = (ab.dot(ap), ac.dot(ap));
-    if d1 <= 0.0 && d2 <= 0.0 {
-        return a;
-    }
-    let bp = p - b;
-    let (d3, d4) = (ab.dot(bp), ac.dot(bp));
-    if d3 >= 0.0 && d4 <= d3 {
-        return b;
-    }
-    let vc = d1 * d4 - d3 * d2;
-    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
-        return a + ab * (d1 / (d1 - d3));
-    }
-    let cp = p - c;
-    let (d5, d6) = (ab.dot(cp), ac.dot(cp));
-    if d6 >= 0.0 && d5 <= d6 {
-        return c;
-    }
-    let vb = d5 * d2 - d1 * d6;
-    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
-        return a + ac * (d2 / (d2 - d6));
-    }
-    let va = d3 * d6 - d5 * d4;
-    if va <= 0.0 && d4 - d3 >= 0.0 && d5 - d6 >= 0.0 {
-        return b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)));
-    }
-    let denom = 1.0 / (va + vb + vc);
-    a + ab * (vb * denom) + ac * (vc * denom)
-}
-
-/// The point of segment [a, b] nearest to `p`.
-pub fn closest_on_segment(p: DVec3, a: DVec3, b: DVec3) -> DVec3 {
-    let ab = b - a;
-    let l2 = ab.length_squared();
-    if l2 == 0.0 {
-        return a;
-    }
-    a + ab * ((p - a).dot(ab) / l2).clamp(0.0, 1.0)
-}
-
-/// The closest points of segments [p1, q1] and [p2, q2] (Ericson 5.1.9).
-pub fn closest_segments(p1: DVec3, q1: DVec3, p2: DVec3, q2: DVec3) -> (DVec3, DVec3) {
-    let (d1, d2, r) = (q1 - p1, q2 - p2, p1 - p2);
-    let (a, e, f) = (d1.length_squared(), d2.length_squared(), d2.dot(r));
-    if a == 0.0 && e == 0.0 {
-        return (p1, p2);
-    }
-    if a == 0.0 {
-        return (p1, p2 + d2 * (f / e).clamp(0.0, 1.0));
-    }
-    let c = d1.dot(r);
-    if e == 0.0 {
-        return (p1 + d1 * (-c / a).clamp(0.0, 1.0), p2);
-    }
-    let b = d1.dot(d2);
-    let denom = a * e - b * b;
-    let mut s = if denom > 0.0 {
-        ((b * f - c * e) / denom).clamp(0.0, 1.0)
-    } else {
-        0.0
-    };
-    let mut t = (b * s + f) / e;
-    if t < 0.0 {
-        t = 0.0;
-        s = (-c / a).clamp(0.0, 1.0);
-    } else if t > 1.0 {
-        t = 1.0;
-        s = ((b - c) / a).clamp(0.0, 1.0);
-    }
-    (p1 + d1 * s, p2 + d2 * t)
 }
 
 /// Where segment [p, q] meets the plane of [a, b, c] (the segment crosses it).
@@ -134,10 +52,10 @@ pub fn triangle_pair(t: &[DVec3; 3], u: &[DVec3; 3]) -> (f64, DVec3, DVec3) {
         }
     };
     for &v in t {
-        take(v, closest_on_triangle(v, u[0], u[1], u[2]));
+        take(v, closest_on_triangle(v, *u));
     }
     for &v in u {
-        take(closest_on_triangle(v, t[0], t[1], t[2]), v);
+        take(closest_on_triangle(v, *t), v);
     }
     for i in 0..3 {
         for j in 0..3 {

@@ -296,3 +296,28 @@ pub fn test_python(modules: &str, what: &str) -> Option<String> {
     eprintln!("\n*** SKIPPED: no Python with {modules} ({python}); {what} was NOT run. Run scripts/test-all.sh. ***\n");
     None
 }
+
+/// The 12 outward-wound triangles of a box whose corner k is (x, y, z) = (lo or hi by bits 0, 1,
+/// 2 of k).
+pub const BOX_TRIANGLES: [[u32; 3]; 12] = [
+    [0, 2, 1],
+    [1, 2, 3],
+    [4, 5, 6],
+    [5, 7, 6],
+    [0, 1, 4],
+    [1, 5, 4],
+    [2, 6, 3],
+    [3, 6, 7],
+    [0, 4, 2],
+    [2, 4, 6],
+    [1, 3, 5],
+    [3, 7, 5],
+];
+
+/// A closed box [lo, hi]: positions (corner k by the bits of k) and [`BOX_TRIANGLES`].
+pub fn box_mesh(lo: [f32; 3], hi: [f32; 3]) -> (Vec<[f32; 3]>, Vec<[u32; 3]>) {
+    let pos = (0..8)
+        .map(|k| std::array::from_fn(|a| if k >> a & 1 == 1 { hi[a] } else { lo[a] }))
+        .collect();
+    (pos, BOX_TRIANGLES.to_vec())
+}
