@@ -83,7 +83,8 @@ pub struct JobOptions {
     /// Sweep every other part in the frame of this moving node: at each row time a part's
     /// pose is the node's pose inverted times its own, and the motion between rows is the screw
     /// in the node's frame (rows of the node and of a part pair by their frame or time). The
-    /// outputs are in the node's frame, and the node is an obstacle.
+    /// outputs are in the node's frame, and the node is an obstacle (so are --against files,
+    /// read in the node's frame).
     #[arg(long, value_name = "NODE")]
     pub relative_to: Option<String>,
 }

@@ -1029,7 +1029,7 @@ fn a_job_folders_obstacles_are_measured_once_and_never_read_outside() {
             ("wall.glb", &wall),
             (
                 "job.json",
-                br#"{"resolution": 16, "against": ["wall.glb"]}"#,
+                br#"{"resolution": 16, "against": ["wall.glb"], "require_clearance": 100}"#,
             ),
         ],
     );
@@ -1061,6 +1061,15 @@ fn a_job_folders_obstacles_are_measured_once_and_never_read_outside() {
     let o = &report["clearance"]["obstacles"][0];
     assert_eq!(o["verdict"], "clear", "{o}");
     assert!(near.join("wall.clearance.glb").exists());
+    // The status says it too: the obstacle clear, the (absurd) required clearance not kept.
+    let message = status(&near.join("status.json")).unwrap()["message"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    assert!(
+        message.contains("1 obstacle(s): 1 clear") && message.contains("required 100: NOT KEPT"),
+        "{message}"
+    );
     let s = status(&out.join("status.json")).unwrap();
     assert_eq!(s["state"], "failed", "{s:#}");
     assert_eq!(s["error"]["column"], "against", "{s:#}");

@@ -214,6 +214,10 @@ def submit(context, objects, frames, options, halvings=sampling.DEFAULT_HALVINGS
         raise ValueError(f"{', '.join(both)}: an object cannot be both swept and an obstacle "
                          "(remove it from the selection or from the Obstacles collection)")
     if reference is not None:
+        if obstacles:
+            raise ValueError(f"with 'Relative to' set, '{reference.name}' is the obstacle: the "
+                             "results are in its frame, where other obstacles would move; clear "
+                             "Obstacles or Relative to")
         if reference.name in {o.name for o in obstacles}:
             raise ValueError(f"'{reference.name}' is the reference, which is an obstacle already: "
                              "remove it from the Obstacles collection")

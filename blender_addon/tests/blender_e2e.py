@@ -462,9 +462,16 @@ def clearance(scene, settings, operators, exchange, coll, part, bar, posed_tris)
           "the Pin's map does not say contact")
     log(f"contact: {first['line']}; job line: {job['line']}")
 
-    # Relative to Bar: the result is parented to Bar, and in Bar's frame.
-    settings.obstacles = None
+    # Relative to Bar: obstacles fixed in the world are refused with it (they would move in
+    # Bar's frame); then the result is parented to Bar, and in Bar's frame.
     settings.reference = bar
+    select([part])
+    try:
+        bpy.ops.sweptvol.compute(wait=True, timeout=60)
+        raise AssertionError("obstacles with a reference were not refused")
+    except RuntimeError as e:
+        check("is the obstacle" in str(e), f"not the refusal's words: {e}")
+    settings.obstacles = None
     select([part])
     check(bpy.ops.sweptvol.compute(wait=True, timeout=400) == {"FINISHED"}, "compute relative to Bar")
     job = operators.JOBS[-1]

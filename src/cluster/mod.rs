@@ -76,8 +76,8 @@ pub const SUBMISSIONS: &str = "submissions.json";
 /// folder.
 pub const JOB_FILE: &str = "job.json";
 
-/// The job file of `run`, sweeping its shards into `shard_dir` on `backend`: the inputs made
-/// absolute, the options as the run takes them.
+/// The job file of `run`, sweeping its shards into `shard_dir` on `backend`: the inputs (and
+/// obstacle files) made absolute, the options as the run takes them.
 pub fn job_file(
     run: &RunOptions,
     shard_dir: &Path,
@@ -87,11 +87,15 @@ pub fn job_file(
         Ok(fs::canonicalize(p)
             .map_err(|e| InputError::new(p, format!("cannot open it: {e}"), "check the path"))?)
     };
+    let mut options = run.job_options(Some(backend));
+    for a in &mut options.against {
+        *a = abs(a)?;
+    }
     Ok(JobFile {
         generator: abs(&run.generator)?,
         trajectory: abs(&run.trajectory)?,
         out: shard_dir.to_path_buf(),
-        options: run.job_options(Some(backend)),
+        options,
         no_memory_check: !run.check_memory,
     })
 }
@@ -399,4 +403,38 @@ pub fn describe(st: &ClusterStatus) -> String {
 /// Shard indices as ranges: "1-3, 5" (`shard::index_ranges`).
 pub fn list(v: &[u32]) -> String {
     crate::pipeline::shard::index_ranges(v)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The array tasks may run in another folder: every input path of the job file is absolute,
+    /// the obstacle files' too.
+    #[test]
+    fn job_files_hold_absolute_paths_only() {
+        let tmp = tempfile::tempdir().unwrap();
+        let here = tmp.path().canonicalize().unwrap();
+        for f in ["g.glb", "t.csv", "wall.glb"] {
+            fs::write(here.join(f), b"x").unwrap();
+        }
+        let rel = |f: &str| here.join(".").join(f);
+        let mut run = RunOptions::of_job(
+            &crate::job::JobOptions {
+                against: vec![rel("wall.glb")],
+                ..Default::default()
+            },
+            rel("g.glb"),
+            rel("t.csv"),
+            here.join("out"),
+            crate::input::grid::Accuracy::DEFAULT,
+        );
+        run.check_memory = true;
+        let file = job_file(&run, &here, BackendChoice::Cpu).unwrap();
+        assert_eq!(file.generator, here.join("g.glb"));
+        assert_eq!(file.trajectory, here.join("t.csv"));
+        assert_eq!(file.options.against, vec![here.join("wall.glb")]);
+        run.job.against = vec![here.join("missing.glb")];
+        assert!(job_file(&run, &here, BackendChoice::Cpu).is_err());
+    }
 }

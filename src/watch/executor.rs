@@ -9,6 +9,7 @@ use std::sync::Arc;
 
 use super::protocol::{Fingerprint, JobId};
 use super::status::StatusFile;
+use crate::clearance::Verdict;
 use crate::input::grid::Accuracy;
 use crate::pipeline::Report;
 use crate::sweep::backend::{Backend, BackendChoice};
@@ -77,9 +78,43 @@ impl Finished {
             outputs: report.outputs.clone(),
             stages: serde_json::to_value(&report.timings).ok(),
             message: format!(
-                "swept {} posed triangles on {}; {} triangles in the mesh",
-                report.counts.posed_triangles, report.backend, report.mesh.triangles_final
+                "swept {} posed triangles on {}; {} triangles in the mesh{}",
+                report.counts.posed_triangles,
+                report.backend,
+                report.mesh.triangles_final,
+                clearance_words(report)
             ),
         }
     }
+}
+
+/// The clearance in a finished job's message: how many obstacles, how many may touch or touch,
+/// and whether the required clearance is kept ("" without obstacles).
+pub fn clearance_words(report: &Report) -> String {
+    let Some(c) = &report.clearance else {
+        return String::new();
+    };
+    let count = |v: Verdict| {
+        c.obstacles
+            .iter()
+            .filter(|o| o.clearance.verdict == v)
+            .count()
+    };
+    let least = c
+        .obstacles
+        .iter()
+        .map(|o| o.clearance.lower)
+        .fold(f64::INFINITY, f64::min);
+    let mut words = format!(
+        "; {} obstacle(s): {} clear, {} possible contact, {} CONTACT; clearance at least {least:.4}",
+        c.obstacles.len(),
+        count(Verdict::Clear),
+        count(Verdict::PossibleContact),
+        count(Verdict::Contact)
+    );
+    if let Some(x) = c.required {
+        let kept = if c.passes { "kept" } else { "NOT KEPT" };
+        words += &format!(" (required {x}: {kept})");
+    }
+    words
 }

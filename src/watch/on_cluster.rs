@@ -118,8 +118,11 @@ pub fn run(
                 .with_context(|| format!("the merge's report {} is unreadable", path.display()))?;
             let mut finished = Finished::of(&report);
             finished.message = format!(
-                "swept {} posed triangles on SLURM ({}); {} triangles in the mesh",
-                report.counts.posed_triangles, report.backend, report.mesh.triangles_final
+                "swept {} posed triangles on SLURM ({}); {} triangles in the mesh{}",
+                report.counts.posed_triangles,
+                report.backend,
+                report.mesh.triangles_final,
+                super::executor::clearance_words(&report)
             );
             return Ok(finished);
         }
