@@ -10,13 +10,7 @@ use super::{pair, Guarantee, Obstacle, Swept, Verdict};
 /// swept volume crosses the mesh's surface), 0 inside it. `verdict` is the obstacle's: where
 /// it is clear, no vertex is inside and the inside test is skipped.
 pub fn lower_ends(swept: &Swept, g: &Guarantee, o: &Obstacle, verdict: Verdict) -> Vec<f64> {
-    let allowance = 1e-12
-        * swept.bvh.nodes[0]
-            .lo
-            .abs()
-            .max(swept.bvh.nodes[0].hi.abs())
-            .max_element()
-            .max(1.0);
+    let allowance = super::rounding_allowance(swept, o);
     o.positions
         .par_iter()
         .map(|&v| {

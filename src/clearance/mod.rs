@@ -241,18 +241,18 @@ pub fn verdict_words(c: &ObstacleClearance) -> String {
     }
 }
 
-/// A relative allowance for the f64 rounding of the distance computations: 1e-12 of the
-/// coordinates' magnitude (the computations lose far less than that).
-fn rounding_allowance(extent: f64) -> f64 {
-    1e-12 * extent.max(1.0)
+/// A relative allowance for the f64 rounding of distances between `swept` and `o`: 1e-12 of
+/// the coordinates' magnitude (the computations lose far less than that).
+fn rounding_allowance(swept: &Swept, o: &Obstacle) -> f64 {
+    let max_abs = |bvh: &Bvh| {
+        let n = &bvh.nodes[0];
+        n.lo.abs().max(n.hi.abs()).max_element()
+    };
+    1e-12 * max_abs(&swept.bvh).max(max_abs(&o.bvh)).max(1.0)
 }
 
-fn max_abs(bvh: &Bvh) -> f64 {
-    let n = &bvh.nodes[0];
-    n.lo.abs().max(n.hi.abs()).max_element()
-}
-
-fn pair(n: &Nearest, obstacle_is_a: bool) -> PointPair {
+/// A nearest pair as the report's points, `obstacle_is_a` saying which side the obstacle is.
+fn point_pair(n: &Nearest, obstacle_is_a: bool) -> PointPair {
     let (o, s) = if obstacle_is_a {
         (n.a_point, n.b_point)
     } else {
@@ -273,7 +273,7 @@ pub fn measure(
     parts: &[PosedPart],
     o: &Obstacle,
 ) -> ObstacleClearance {
-    let allowance = rounding_allowance(max_abs(&swept.bvh).max(max_abs(&o.bvh)));
+    let allowance = rounding_allowance(swept, o);
     let near = pair::nearest(&o.bvh, None, &swept.bvh, f64::INFINITY)
         .expect("two non-empty triangle sets have a nearest pair");
     // They meet where the surfaces cross, the obstacle lies inside the mesh, or the mesh
@@ -319,7 +319,7 @@ pub fn measure(
         lower,
         upper: upper.map(|u| u.0),
         upper_from: upper.map(|u| u.1.to_string()),
-        closest: pair(&near, true),
+        closest: point_pair(&near, true),
         nearest_pose,
         witness,
     }
@@ -390,7 +390,7 @@ fn nearest_pose(
                     row,
                     line,
                     distance: n.distance,
-                    points: pair(&n, false),
+                    points: point_pair(&n, false),
                 });
             }
         }

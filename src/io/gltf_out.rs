@@ -46,13 +46,7 @@ pub fn glb_bytes(
             [f.x, f.y, f.z]
         })
         .collect();
-    let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
-    for p in &positions {
-        for c in 0..3 {
-            lo[c] = lo[c].min(p[c]);
-            hi[c] = hi[c].max(p[c]);
-        }
-    }
+    let (lo, hi) = bounds(&positions);
     let mut bin: Vec<u8> = Vec::new();
     bin.extend_from_slice(bytemuck::cast_slice(&positions));
     let normals_at = bin.len();
@@ -81,6 +75,18 @@ pub fn glb_bytes(
         "buffers": [{"byteLength": bin.len()}],
     });
     pack_glb(&doc, bin)
+}
+
+/// The box of `points` (an accessor's `min` and `max`).
+fn bounds(points: &[[f32; 3]]) -> ([f32; 3], [f32; 3]) {
+    let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+    for p in points {
+        for c in 0..3 {
+            lo[c] = lo[c].min(p[c]);
+            hi[c] = hi[c].max(p[c]);
+        }
+    }
+    (lo, hi)
 }
 
 /// A .glb file of `doc` (JSON) and `bin` (its one buffer).
@@ -139,16 +145,6 @@ pub fn clearance_glb(nodes: &[MapNode]) -> anyhow::Result<Vec<u8>> {
     if nodes.is_empty() || nodes.iter().any(|n| n.triangles.is_empty()) {
         bail!("a clearance map needs obstacles with triangles");
     }
-    let bounds = |ps: &[[f32; 3]]| {
-        let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
-        for p in ps {
-            for c in 0..3 {
-                lo[c] = lo[c].min(p[c]);
-                hi[c] = hi[c].max(p[c]);
-            }
-        }
-        (lo, hi)
-    };
     let mut bin: Vec<u8> = Vec::new();
     let (mut views, mut accessors, mut meshes, mut doc_nodes, mut roots) =
         (vec![], vec![], vec![], vec![], vec![]);

@@ -251,18 +251,7 @@ pub fn run(opts: &ClearanceOptions) -> anyhow::Result<ClearanceReport> {
         .or_else(|| opts.mesh.parent().map(Path::to_path_buf))
         .unwrap_or_default();
     let stem = mesh_stem(&opts.mesh);
-    let run_like = super::RunOptions::of_job(
-        &crate::job::JobOptions {
-            against: opts.asked.against.clone(),
-            name: Some(stem.clone()),
-            ..Default::default()
-        },
-        opts.mesh.clone(),
-        opts.report.clone(),
-        dir.clone(),
-        crate::input::grid::Accuracy::DEFAULT,
-    );
-    let maps = super::outputs::output_paths(&run_like)?.clearance_maps;
+    let maps = super::outputs::clearance_map_paths(&dir, &stem, None, &opts.asked.against)?;
     let json_path = dir.join(format!("{stem}.clearance.json"));
     if !opts.overwrite {
         if let Some(p) = std::iter::once(&json_path)

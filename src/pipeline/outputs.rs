@@ -1,7 +1,7 @@
 //! The files a run writes, by name: the one place the output names are spelled, and the rule
 //! that no output may be an input.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use super::RunOptions;
 use crate::error::{OptionError, OptionKey};
@@ -109,14 +109,17 @@ impl OutputPaths {
 /// The clearance map of the `relative_to` node, then of each `against` file:
 /// `<stem>.<node name or file stem>.clearance.glb`, the name
 /// made of letters, digits, `-` and `_` (others become `_`); two files of one stem are refused.
-fn clearance_map_paths(opts: &RunOptions, stem: &str) -> anyhow::Result<Vec<PathBuf>> {
+pub(super) fn clearance_map_paths(
+    out_dir: &Path,
+    stem: &str,
+    relative_to: Option<&str>,
+    against: &[PathBuf],
+) -> anyhow::Result<Vec<PathBuf>> {
     let mut out: Vec<PathBuf> = Vec::new();
-    let pieces = opts
-        .job
-        .relative_to
-        .iter()
-        .cloned()
-        .chain(opts.job.against.iter().map(|f| {
+    let pieces = relative_to
+        .map(str::to_string)
+        .into_iter()
+        .chain(against.iter().map(|f| {
             f.file_stem()
                 .map(|s| s.to_string_lossy().into_owned())
                 .unwrap_or_default()
@@ -137,9 +140,7 @@ fn clearance_map_paths(opts: &RunOptions, stem: &str) -> anyhow::Result<Vec<Path
         } else {
             piece
         };
-        let path = opts
-            .out_dir
-            .join(with_stem(stem, &format!("{piece}.{CLEARANCE_SUFFIX}")));
+        let path = out_dir.join(with_stem(stem, &format!("{piece}.{CLEARANCE_SUFFIX}")));
         if out.contains(&path) {
             return Err(OptionError::new(
                 OptionKey::Against,
@@ -153,6 +154,14 @@ fn clearance_map_paths(opts: &RunOptions, stem: &str) -> anyhow::Result<Vec<Path
         out.push(path);
     }
     Ok(out)
+}
+
+/// Whether `name` is a clearance map of `stem`: `<stem>.<piece>.clearance.glb` with a piece
+/// as [`clearance_map_paths`] makes them (not empty, no dot).
+fn is_clearance_map(name: &str, stem: &str) -> bool {
+    name.strip_prefix(&with_stem(stem, ""))
+        .and_then(|rest| rest.strip_suffix(&format!(".{CLEARANCE_SUFFIX}")))
+        .is_some_and(|piece| !piece.is_empty() && !piece.contains('.'))
 }
 
 /// Every file `run` writes.
@@ -174,7 +183,12 @@ pub fn output_paths(opts: &RunOptions) -> anyhow::Result<OutputPaths> {
         let real = p.canonicalize().ok();
         real.is_some() && inputs.contains(&real)
     };
-    let clearance_maps = clearance_map_paths(opts, &stem)?;
+    let clearance_maps = clearance_map_paths(
+        &opts.out_dir,
+        &stem,
+        opts.job.relative_to.as_deref(),
+        &opts.job.against,
+    )?;
     // Maps of an earlier run against other files: `<stem>.*.clearance.glb` in the folder.
     let old_maps: Vec<PathBuf> = std::fs::read_dir(&opts.out_dir)
         .into_iter()
@@ -182,13 +196,9 @@ pub fn output_paths(opts: &RunOptions) -> anyhow::Result<OutputPaths> {
         .flatten()
         .map(|e| e.path())
         .filter(|p| {
-            p.file_name().and_then(|n| n.to_str()).is_some_and(|n| {
-                n.strip_prefix(&with_stem(&stem, ""))
-                    .and_then(|rest| rest.strip_suffix(CLEARANCE_SUFFIX))
-                    .is_some_and(|mid| {
-                        mid.ends_with('.') && mid.len() > 1 && !mid[..mid.len() - 1].contains('.')
-                    })
-            })
+            p.file_name()
+                .and_then(|n| n.to_str())
+                .is_some_and(|n| is_clearance_map(n, &stem))
         })
         .filter(|p| !clearance_maps.contains(p))
         .collect();
