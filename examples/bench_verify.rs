@@ -185,6 +185,7 @@ fn main() -> anyhow::Result<()> {
     let t0 = Instant::now();
     let report = verify::verify(
         &VerifyOptions {
+            rows: Default::default(),
             generator: gen100k,
             trajectory: csv,
             mesh: mesh30k,

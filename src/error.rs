@@ -98,10 +98,11 @@ pub enum OptionKey {
     RequireClearance,
     ClearanceScale,
     RelativeTo,
+    Rows,
 }
 
 impl OptionKey {
-    pub const ALL: [OptionKey; 24] = [
+    pub const ALL: [OptionKey; 25] = [
         OptionKey::Resolution,
         OptionKey::Tolerance,
         OptionKey::Delta,
@@ -126,6 +127,7 @@ impl OptionKey {
         OptionKey::RequireClearance,
         OptionKey::ClearanceScale,
         OptionKey::RelativeTo,
+        OptionKey::Rows,
     ];
 
     /// The library's name: snake_case, the same as the job.json key where there is one.
@@ -155,6 +157,7 @@ impl OptionKey {
             OptionKey::RequireClearance => "require_clearance",
             OptionKey::ClearanceScale => "clearance_scale",
             OptionKey::RelativeTo => "relative_to",
+            OptionKey::Rows => "rows",
         }
     }
 

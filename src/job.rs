@@ -13,6 +13,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::OptionKey;
 use crate::input::grid::Radii;
+use crate::input::model::Rows;
 use crate::input::motion::Motion;
 use crate::mesh::classify::Method;
 use crate::sweep::backend::BackendChoice;
@@ -87,6 +88,13 @@ pub struct JobOptions {
     /// read in the node's frame).
     #[arg(long, value_name = "NODE")]
     pub relative_to: Option<String>,
+    /// What a trajectory row's matrix is: `world`, a world-space transform of the part where
+    /// the glTF puts it; or `local`, the named node's own transform relative to its parent
+    /// (the glTF's node hierarchy is the kinematic tree: between rows each node moves by the
+    /// screw in its parent's frame, joint-linear for a revolute or prismatic joint, and rows
+    /// of different nodes pair by their frame or time). A --robot job's rows are always local.
+    #[arg(long, value_enum, default_value_t)]
+    pub rows: Rows,
 }
 
 /// A whole job as one file, as `cluster submit` writes it for its array tasks (`sweep --job
@@ -106,7 +114,7 @@ pub struct JobFile {
 }
 
 /// The keys of job.json: [`JobOptions`]'s fields, in order (a test holds them to the struct).
-pub const JOB_KEYS: [&str; 16] = [
+pub const JOB_KEYS: [&str; 17] = [
     "resolution",
     "tolerance",
     "delta",
@@ -123,6 +131,7 @@ pub const JOB_KEYS: [&str; 16] = [
     "require_clearance",
     "clearance_scale",
     "relative_to",
+    "rows",
 ];
 
 /// An output file stem: a name, not empty and not a path.

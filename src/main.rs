@@ -186,6 +186,9 @@ struct VerifyArgs {
     /// relative to it.
     #[arg(long, value_name = "NODE")]
     relative_to: Option<String>,
+    /// The run's --rows: `local` reads each row as its node's transform relative to its parent.
+    #[arg(long, value_enum, default_value_t)]
+    rows: sweptvol::input::model::Rows,
     /// Print the report as JSON on stdout (no progress bar).
     #[arg(long)]
     json: bool,
@@ -638,6 +641,7 @@ fn verify(args: VerifyArgs) -> anyhow::Result<ExitCode> {
         all_failures: args.all_failures,
         motion: args.motion,
         relative_to: args.relative_to,
+        rows: args.rows,
     };
     let bar = if args.quiet || args.json {
         ProgressBar::hidden()

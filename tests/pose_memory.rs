@@ -86,6 +86,7 @@ fn pose_memory_does_not_grow_with_the_sub_poses() {
     // A small triangle pushed 10 units back and forth between 4500 rows: each interval needs
     // about 2n steps at resolution n.
     let g = Generator {
+        nodes: Vec::new(),
         parts: vec![Part {
             node_index: 0,
             node_name: Some("chip".into()),

@@ -522,6 +522,7 @@ fn node_rows_move_only_their_own_part_and_static_parts_stay() {
         .map(|k| DMat4::from_translation(DVec3::new(0.0, 0.3 * k as f64, 0.0)))
         .collect();
     let traj = Trajectory {
+        rows: Default::default(),
         poses: moves
             .iter()
             .enumerate()
@@ -556,10 +557,12 @@ fn node_rows_move_only_their_own_part_and_static_parts_stay() {
     let images = cpu::sweep(&input, &Silent).unwrap();
     // Expected geometry: "part" at each of its poses, "fixed" once at W.
     let moved = Generator {
+        nodes: Vec::new(),
         parts: vec![g.parts[0].clone()],
         warnings: vec![],
     };
     let fixed = Generator {
+        nodes: Vec::new(),
         parts: vec![g.parts[1].clone()],
         warnings: vec![],
     };
@@ -615,6 +618,7 @@ fn gpu_matches_cpu_twin_on_sub_poses() {
         rows.push(("slider", m));
     }
     let traj = Trajectory {
+        rows: Default::default(),
         poses: rows
             .iter()
             .enumerate()

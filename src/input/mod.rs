@@ -5,6 +5,7 @@
 //! needs before anything large is allocated; [`outline`] keeps the vertices that can be extreme,
 //! for the bounds taken over every row.
 
+pub mod chain;
 pub mod grid;
 pub mod memory;
 pub mod model;

@@ -23,10 +23,26 @@ pub struct Part {
     pub triangles: Vec<[u32; 3]>,
 }
 
+/// One node of the glTF node hierarchy (with or without a mesh): the kinematic tree that
+/// rows in parent space (`Rows::Local`) move.
+#[derive(Debug, Clone)]
+pub struct TreeNode {
+    /// Index of the node in the glTF document.
+    pub index: usize,
+    pub name: Option<String>,
+    /// The parent's document index; None for a root of the scene.
+    pub parent: Option<usize>,
+    /// The node's own transform relative to its parent, f64.
+    pub local: DMat4,
+}
+
 /// The generator: every part of the chosen scene.
 #[derive(Debug, Clone, Default)]
 pub struct Generator {
     pub parts: Vec<Part>,
+    /// Every node of the chosen scene, parents before their children (empty where a generator
+    /// is made without a hierarchy: then no row can be in parent space).
+    pub nodes: Vec<TreeNode>,
     /// Things skipped while reading (points and lines primitives, ...), for the report and the log.
     pub warnings: Vec<String>,
 }
@@ -93,6 +109,36 @@ impl Generator {
     }
 }
 
+/// What a trajectory row's matrix is: a world-space transform of the part where the glTF puts
+/// it (`world`, v' = M·W·v), or the node's own transform relative to its parent (`local`,
+/// replacing the glTF's), the parents' rows composed along the hierarchy.
+#[derive(
+    Clone,
+    Copy,
+    Debug,
+    Default,
+    PartialEq,
+    Eq,
+    serde::Serialize,
+    serde::Deserialize,
+    clap::ValueEnum,
+)]
+#[serde(rename_all = "lowercase")]
+pub enum Rows {
+    #[default]
+    World,
+    Local,
+}
+
+impl Rows {
+    pub fn name(self) -> &'static str {
+        match self {
+            Rows::World => "world",
+            Rows::Local => "local",
+        }
+    }
+}
+
 /// One row of the trajectory CSV.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Pose {
@@ -113,6 +159,8 @@ pub struct Trajectory {
     pub poses: Vec<Pose>,
     /// True when the file has a `node` column.
     pub has_node_column: bool,
+    /// What the rows' matrices are.
+    pub rows: Rows,
 }
 
 impl Trajectory {
@@ -130,6 +178,7 @@ impl Trajectory {
                 })
                 .collect(),
             has_node_column: false,
+            rows: Rows::World,
         }
     }
 }

@@ -135,6 +135,158 @@ fn v_inverse(w: DVec3) -> DMat3 {
     DMat3::IDENTITY - k * 0.5 + k * k * e
 }
 
+/// The screw motion of one pose into the next: M(s) = G₀·exp(s·ξ)·((1-s)S₀ + sS₁), with
+/// ξ = log(G₀⁻¹G₁) the relative rigid motion as a twist (rotation vector ω in radians, v).
+#[derive(Clone, Debug)]
+pub(crate) struct Screw {
+    from: Split,
+    s1: DMat3,
+    omega: DVec3,
+    v: DVec3,
+    /// Rotation angle, radians, in [0, MAX_TURN].
+    turn: f64,
+}
+
+/// Why two poses have no screw between them.
+pub(crate) enum NoScrew {
+    Singular,
+    MirrorFlips,
+    /// The turn, radians: half a revolution or nearly.
+    HalfTurn(f64),
+}
+
+impl Screw {
+    pub(crate) fn between(m0: &DMat4, m1: &DMat4) -> Result<Screw, NoScrew> {
+        let (Some(a), Some(b)) = (split(m0), split(m1)) else {
+            return Err(NoScrew::Singular);
+        };
+        if a.s.determinant().signum() != b.s.determinant().signum() {
+            return Err(NoScrew::MirrorFlips);
+        }
+        let rel_r = a.r.transpose() * b.r;
+        let rel_t = a.r.transpose() * (b.t - a.t);
+        let mut q = DQuat::from_mat3(&rel_r).normalize();
+        if q.w < 0.0 {
+            q = -q;
+        }
+        let xyz = DVec3::new(q.x, q.y, q.z);
+        let turn = 2.0 * xyz.length().atan2(q.w);
+        if turn > MAX_TURN {
+            return Err(NoScrew::HalfTurn(turn));
+        }
+        let omega = if turn > 0.0 {
+            xyz.normalize() * turn
+        } else {
+            DVec3::ZERO
+        };
+        Ok(Screw {
+            from: a,
+            s1: b.s,
+            omega,
+            v: v_inverse(omega) * rel_t,
+            turn,
+        })
+    }
+
+    /// The pose at s in [0, 1].
+    pub(crate) fn at(&self, s: f64) -> DMat4 {
+        let w = self.omega * s;
+        let rot = DMat3::from_quat(DQuat::from_scaled_axis(w));
+        let g_r = self.from.r * rot;
+        let g_t = self.from.t + self.from.r * (v_matrix(w) * (self.v * s));
+        let a = g_r * self.stretch(s);
+        DMat4::from_cols(
+            a.x_axis.extend(0.0),
+            a.y_axis.extend(0.0),
+            a.z_axis.extend(0.0),
+            g_t.extend(1.0),
+        )
+    }
+
+    /// The symmetric stretch at s: (1-s)S₀ + sS₁.
+    fn stretch(&self, s: f64) -> DMat3 {
+        self.from.s * (1.0 - s) + self.s1 * s
+    }
+
+    pub(crate) fn turn(&self) -> f64 {
+        self.turn
+    }
+
+    /// Bound on the speed (d/ds) of the point M(s)·q(s) over s in [a, b], for a point q(s)
+    /// of the moved frame that starts at `q0` and moves at speed at most `inner` (world units
+    /// per unit of the sub-interval's parameter σ = (s - a)/(b - a)), per unit of σ. In G(a)'s
+    /// frame (rigid, so lengths are the world's) the velocity is Δ·(ω × y + v) + R(s)·Δ·(S₁ -
+    /// S₀)q + M(s)'s linear part · q' with y = exp(sξ)·S(s)q, Δ = b - a; the twist's own flow
+    /// keeps |ω × y + v| = |ω × S(s)q + v|, convex in s (largest at a or b); |q(σ) - q0| ≤
+    /// `inner`; ‖S(s)‖ ≤ max(‖S(a)‖, ‖S(b)‖) by convexity of the norm. So the speed is at most
+    /// Δ·max_e |ω × S(e)q0 + v| + Δ·|(S₁-S₀)q0| + (Δ·|ω|·σ_S + Δ·‖S₁-S₀‖ + σ_S)·inner, convex
+    /// in q0 (so the largest over a part is at a vertex of its outline).
+    pub(crate) fn speed(&self, (a, b): (f64, f64), q0: DVec3, inner: f64) -> f64 {
+        let d = b - a;
+        let (sa, sb) = (self.stretch(a), self.stretch(b));
+        let ds = self.s1 - self.from.s;
+        let sigma = sym_norm(&sa).max(sym_norm(&sb));
+        let twist = (self.omega.cross(sa * q0) + self.v)
+            .length()
+            .max((self.omega.cross(sb * q0) + self.v).length());
+        d * (twist + (ds * q0).length())
+            + (d * self.omega.length() * sigma + d * sym_norm(&ds) + sigma) * inner
+    }
+}
+
+/// An upper bound of the spectral norm of a symmetric matrix: its largest absolute row sum
+/// (every induced norm bounds the spectral radius, which is the spectral norm when symmetric).
+fn sym_norm(s: &DMat3) -> f64 {
+    let t = s.transpose();
+    [t.x_axis, t.y_axis, t.z_axis]
+        .iter()
+        .map(|r| r.abs().element_sum())
+        .fold(0.0, f64::max)
+}
+
+/// An upper bound of the spectral norm of any 3x3 matrix: √(‖A‖₁·‖A‖∞).
+pub(crate) fn norm_bound(a: &DMat3) -> f64 {
+    let col = [a.x_axis, a.y_axis, a.z_axis]
+        .iter()
+        .map(|c| c.abs().element_sum())
+        .fold(0.0, f64::max);
+    let t = a.transpose();
+    let row = [t.x_axis, t.y_axis, t.z_axis]
+        .iter()
+        .map(|r| r.abs().element_sum())
+        .fold(0.0, f64::max);
+    (col * row).sqrt()
+}
+
+/// How an interval's pose is made. (The screw is kept inline: world rows have one interval per
+/// row pair and no other allocation; a chain's factors are on the heap anyway.)
+#[derive(Clone, Debug)]
+#[allow(clippy::large_enum_variant)]
+pub(crate) enum Kind {
+    /// The screw from one world pose to the next.
+    Single(Screw),
+    /// A kinematic chain (`input::chain`): the product, root first, of each node's local
+    /// transform at the interval's parameter.
+    Chain(Vec<Factor>),
+}
+
+/// One node of a chain over an interval: its local transform held, or moving along part
+/// [a, b] of the screw between two of its rows.
+#[derive(Clone, Debug)]
+pub(crate) enum Factor {
+    Fixed(DMat4),
+    Moving { screw: Screw, span: (f64, f64) },
+}
+
+impl Factor {
+    fn at(&self, sigma: f64) -> DMat4 {
+        match self {
+            Factor::Fixed(m) => *m,
+            Factor::Moving { screw, span } => screw.at(span.0 + sigma * (span.1 - span.0)),
+        }
+    }
+}
+
 /// One interval of a part's motion: from `from` at s = 0 to the next row's pose at s = 1.
 #[derive(Clone, Debug)]
 pub struct Interval {
@@ -142,32 +294,20 @@ pub struct Interval {
     pub part: usize,
     /// CSV lines of the two rows.
     pub lines: (u64, u64),
-    from: Split,
-    s1: DMat3,
-    /// The relative rigid motion G₀⁻¹G₁ as a twist: rotation vector ω (radians) and v.
-    omega: DVec3,
-    v: DVec3,
+    pub(crate) kind: Kind,
     /// Bound on the path length of every point of the part over the interval, world units.
     pub path: f64,
-    /// Rotation angle of the interval, radians.
+    /// Rotation angle of the interval, radians (for a chain: the sum of its nodes' turns).
     pub turn: f64,
 }
 
 impl Interval {
     /// The pose at s in [0, 1].
     pub fn at(&self, s: f64) -> DMat4 {
-        let w = self.omega * s;
-        let rot = DMat3::from_quat(DQuat::from_scaled_axis(w));
-        let g_r = self.from.r * rot;
-        let g_t = self.from.t + self.from.r * (v_matrix(w) * (self.v * s));
-        let stretch = self.from.s * (1.0 - s) + self.s1 * s;
-        let a = g_r * stretch;
-        DMat4::from_cols(
-            a.x_axis.extend(0.0),
-            a.y_axis.extend(0.0),
-            a.z_axis.extend(0.0),
-            g_t.extend(1.0),
-        )
+        match &self.kind {
+            Kind::Single(screw) => screw.at(s),
+            Kind::Chain(factors) => factors.iter().fold(DMat4::IDENTITY, |acc, f| acc * f.at(s)),
+        }
     }
 
     /// Equal steps of s that leave every point of the motion within `mu` of a sub-pose.
@@ -193,62 +333,15 @@ pub fn intervals(
             let ((m0, l0), (m1, l1)) = (pair[0], pair[1]);
             let (l0, l1) = (l0.unwrap_or(0), l1.unwrap_or(0));
             let name = part_name(generator, *part);
-            let refuse = |message: String, fix: &str| {
-                InputError::new(csv_path, message, fix)
-                    .at_line(l1)
-                    .in_column("node")
-            };
-            let (Some(a), Some(b)) = (split(&m0), split(&m1)) else {
-                return Err(refuse(
-                    format!("the pose of {name} at line {l0} or {l1} is singular"),
-                    "give every row an invertible transform",
-                ));
-            };
-            if a.s.determinant().signum() != b.s.determinant().signum() {
-                return Err(refuse(
-                    format!("{name} is mirrored at line {l0} but not at line {l1} (or the other way): no rigid motion turns one into the other"),
-                    "mirror the part in every row or in none, or set $motion to discrete",
-                ));
-            }
-            let rel_r = a.r.transpose() * b.r;
-            let rel_t = a.r.transpose() * (b.t - a.t);
-            let mut q = DQuat::from_mat3(&rel_r).normalize();
-            if q.w < 0.0 {
-                q = -q;
-            }
-            let xyz = DVec3::new(q.x, q.y, q.z);
-            let turn = 2.0 * xyz.length().atan2(q.w);
-            if turn > MAX_TURN {
-                return Err(refuse(
-                    format!(
-                        "{name} turns by {:.2}° between lines {l0} and {l1}: a turn of 180° or more between two rows has no single shortest motion",
-                        turn.to_degrees()
-                    ),
-                    "add a row between them (a pose half way), or set $motion to discrete to sweep only the listed poses",
-                ));
-            }
-            let omega = if turn > 0.0 {
-                xyz.normalize() * turn
-            } else {
-                DVec3::ZERO
-            };
-            let v = v_inverse(omega) * rel_t;
-            let (s0, s1) = (a.s, b.s);
-            // Path length of point p (local frame) over s in [0, 1], in G₀'s frame (rigid, so
-            // lengths are the world's): the velocity is ω × y + v + R(s)·(S₁ - S₀)p at
-            // y = exp(sξ)·S(s)p. The twist's own flow keeps |ω × y + v| = |ω × S(s)p + v|,
-            // which is convex in s (largest at s = 0 or 1), so the length is at most
-            // max(|ω×S₀p + v|, |ω×S₁p + v|) + |(S₁ - S₀)p|; convex in p, so the largest over
-            // a triangle, and over the part, is at a vertex.
-            let ds = s1 - s0;
+            let screw =
+                Screw::between(&m0, &m1).map_err(|why| refusal(why, &name, csv_path, (l0, l1)))?;
+            // Path length of point p (local frame) over s in [0, 1]: `Screw::speed` of a
+            // point fixed in the part; convex in p, so the largest over the part is at a vertex.
             let mut path: f64 = 0.0;
             let mut reach: f64 = 0.0;
             for p in positions {
                 let p = p.as_dvec3();
-                let speed = (omega.cross(s0 * p) + v)
-                    .length()
-                    .max((omega.cross(s1 * p) + v).length());
-                path = path.max(speed + (ds * p).length());
+                path = path.max(screw.speed((0.0, 1.0), p, 0.0));
                 reach = reach.max((m0.transform_point3(p)).abs().max_element());
                 reach = reach.max((m1.transform_point3(p)).abs().max_element());
             }
@@ -257,16 +350,49 @@ pub fn intervals(
             out.push(Interval {
                 part: *part,
                 lines: (l0, l1),
-                from: a,
-                s1,
-                omega,
-                v,
+                turn: screw.turn,
+                kind: Kind::Single(screw),
                 path,
-                turn,
             });
         }
     }
     Ok(out)
+}
+
+/// The error for two rows, at CSV lines `lines`, of `name` (a node, as the message says it)
+/// with no screw between them.
+pub(crate) fn refusal(
+    why: NoScrew,
+    name: &str,
+    csv_path: &Path,
+    (l0, l1): (u64, u64),
+) -> InputError {
+    let (message, fix) = match why {
+        NoScrew::Singular => (
+            format!("the pose of {name} at line {l0} or {l1} is singular"),
+            "give every row an invertible transform",
+        ),
+        NoScrew::MirrorFlips => (
+            format!("{name} is mirrored at line {l0} but not at line {l1} (or the other way): no rigid motion turns one into the other"),
+            "mirror the part in every row or in none, or set $motion to discrete",
+        ),
+        NoScrew::HalfTurn(turn) => (
+            format!(
+                "{name} turns by {:.2}° between lines {l0} and {l1}: a turn of 180° or more between two rows has no single shortest motion",
+                turn.to_degrees()
+            ),
+            "add a row between them (a pose half way), or set $motion to discrete to sweep only the listed poses",
+        ),
+    };
+    InputError::new(csv_path, message, fix)
+        .at_line(l1)
+        .in_column("node")
+}
+
+/// The f64 evaluation error of a pose made of `factors` products, as a distance any point of
+/// a part within `reach` of the origin may be off by, on a path of length `path`.
+pub(crate) fn eval_error(factors: usize, reach: f64, path: f64) -> f64 {
+    2.0 * F64_EVAL_REL * factors.max(1) as f64 * (reach + path)
 }
 
 fn part_name(generator: &Generator, part: usize) -> String {
@@ -418,6 +544,7 @@ mod tests {
 
     fn part(points: &[DVec3]) -> Generator {
         Generator {
+            nodes: Vec::new(),
             parts: vec![crate::input::model::Part {
                 node_index: 0,
                 node_name: Some("p".into()),
@@ -431,6 +558,7 @@ mod tests {
 
     fn try_interval(m0: DMat4, m1: DMat4, points: &[DVec3]) -> Result<Interval, InputError> {
         let traj = Trajectory {
+            rows: Default::default(),
             poses: vec![],
             has_node_column: false,
         };

@@ -9,8 +9,9 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::error::{num, InputError, OptionError, OptionKey};
+use crate::input::chain;
 use crate::input::grid::{fit_grid, Accuracy, Grid, Overrides, Params};
-use crate::input::model::{Generator, LinedPose, Part, Trajectory};
+use crate::input::model::{Generator, LinedPose, Part, Rows, Trajectory};
 use crate::input::motion::{self, Motion, MotionReport, MU_VOXELS};
 use crate::input::outline;
 use crate::input::poses::PoseSource;
@@ -368,7 +369,6 @@ pub fn build(
     overrides: Overrides,
     motion: Motion,
 ) -> anyhow::Result<SweepInput> {
-    let assigned = assign_poses(generator, trajectory, csv_path)?;
     // The bounds over every row (box, path lengths, world range) are maxima of convex
     // functions of the vertex, so the parts' outlines give the same ones (`input::outline`).
     let outlined = Generator {
@@ -383,7 +383,16 @@ pub fn build(
                 triangles: Vec::new(),
             })
             .collect(),
+        nodes: generator.nodes.clone(),
         warnings: Vec::new(),
+    };
+    // Rows in parent space give the poses and the intervals together (`input::chain`).
+    let (assigned, chain_intervals) = match trajectory.rows {
+        Rows::World => (assign_poses(generator, trajectory, csv_path)?, None),
+        Rows::Local => {
+            let (assigned, intervals) = chain::resolve(&outlined, trajectory, csv_path, motion)?;
+            (assigned, Some(intervals))
+        }
     };
     let (mut lo, mut hi) = posed_bounds(&outlined, &assigned);
     check_posed_range(
@@ -395,9 +404,10 @@ pub fn build(
         accuracy,
         overrides,
     )?;
-    let intervals = match motion {
-        Motion::Screw => motion::intervals(&outlined, trajectory, csv_path, &assigned)?,
-        Motion::Discrete => Vec::new(),
+    let intervals = match (motion, chain_intervals) {
+        (_, Some(intervals)) => intervals,
+        (Motion::Screw, None) => motion::intervals(&outlined, trajectory, csv_path, &assigned)?,
+        (Motion::Discrete, None) => Vec::new(),
     };
     // The grid holds every instant of the motion (the sweep would clip what lies outside).
     let motion_box = (!intervals.is_empty())

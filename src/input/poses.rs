@@ -227,6 +227,7 @@ mod tests {
     fn generator(rng: &mut fastrand::Rng) -> Generator {
         let mut r = || rng.f64() * 2.0 - 1.0;
         Generator {
+            nodes: Vec::new(),
             parts: vec![Part {
                 node_index: 0,
                 node_name: Some("p".into()),
@@ -258,6 +259,7 @@ mod tests {
             out.push(m * stretch);
         }
         let traj = Trajectory {
+            rows: Default::default(),
             poses: vec![],
             has_node_column: false,
         };

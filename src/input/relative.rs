@@ -180,11 +180,13 @@ pub fn apply(
     Ok((
         Generator {
             parts,
+            nodes: Vec::new(), // the parts now stand in the reference's frame: no hierarchy
             warnings: generator.warnings.clone(),
         },
         Trajectory {
             poses,
             has_node_column: true,
+            rows: crate::input::model::Rows::World,
         },
         generator.parts[r].clone(),
     ))
@@ -221,6 +223,7 @@ mod tests {
         let w_ref = DMat4::from_translation(DVec3::new(0.5, 0.0, 2.0));
         let w_part = DMat4::from_rotation_z(0.3);
         let g = Generator {
+            nodes: Vec::new(),
             parts: vec![part("frame", w_ref), part("arm", w_part)],
             warnings: vec![],
         };
@@ -234,6 +237,7 @@ mod tests {
             poses.push(row(3 + 2 * k, k as f64, "arm", m));
         }
         let t = Trajectory {
+            rows: Default::default(),
             poses,
             has_node_column: true,
         };
@@ -249,10 +253,12 @@ mod tests {
     #[test]
     fn missing_references_and_unpaired_times_are_refused_by_name() {
         let g = Generator {
+            nodes: Vec::new(),
             parts: vec![part("frame", DMat4::IDENTITY), part("arm", DMat4::IDENTITY)],
             warnings: vec![],
         };
         let t = Trajectory {
+            rows: Default::default(),
             poses: vec![
                 row(2, 0.0, "frame", DMat4::IDENTITY),
                 row(3, 0.0, "arm", DMat4::IDENTITY),
@@ -270,6 +276,7 @@ mod tests {
         let e = e.downcast::<InputError>().unwrap();
         assert_eq!(e.line, Some(4), "{e}");
         let only_arm = Trajectory {
+            rows: Default::default(),
             poses: vec![row(3, 0.0, "arm", DMat4::IDENTITY)],
             has_node_column: true,
         };

@@ -18,7 +18,7 @@ use gltf::scene::Transform;
 use gltf::{Document, Gltf, Mesh, Node, Semantic};
 
 use crate::error::InputError;
-use crate::input::model::{Generator, Part};
+use crate::input::model::{Generator, Part, TreeNode};
 
 /// The fix for a generator file that is not glTF at all.
 const NOT_GLTF_FIX: &str = "give the generator as glTF 2.0 (.glb, or .gltf with its buffers); re-export it from the modelling tool";
@@ -430,12 +430,12 @@ fn collect_parts(
 ) -> Result<(), InputError> {
     let mut seen = vec![false; doc.nodes().len()];
     let mut meshes: HashMap<usize, Geometry> = HashMap::new();
-    let mut stack: Vec<(Node, DMat4)> = roots
+    let mut stack: Vec<(Node, DMat4, Option<usize>)> = roots
         .into_iter()
         .rev()
-        .map(|n| (n, DMat4::IDENTITY))
+        .map(|n| (n, DMat4::IDENTITY, None))
         .collect();
-    while let Some((node, parent)) = stack.pop() {
+    while let Some((node, parent, parent_index)) = stack.pop() {
         let at = format!("nodes[{}]", node.index());
         if std::mem::replace(&mut seen[node.index()], true) {
             return Err(InputError::new(
@@ -464,7 +464,8 @@ fn collect_parts(
                 .in_column(label));
             }
         }
-        let world = parent * local_matrix(&node);
+        let local = local_matrix(&node);
+        let world = parent * local;
         if !world.is_finite() {
             return Err(InputError::new(
                 path,
@@ -506,8 +507,19 @@ fn collect_parts(
                 });
             }
         }
+        generator.nodes.push(TreeNode {
+            index: node.index(),
+            name: node.name().map(str::to_string),
+            parent: parent_index,
+            local,
+        });
         let children: Vec<Node> = node.children().collect();
-        stack.extend(children.into_iter().rev().map(|c| (c, world)));
+        stack.extend(
+            children
+                .into_iter()
+                .rev()
+                .map(|c| (c, world, Some(node.index()))),
+        );
     }
     Ok(())
 }

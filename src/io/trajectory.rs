@@ -109,6 +109,7 @@ pub fn parse_trajectory(path: &Path, text: &str) -> Result<Trajectory, InputErro
     Ok(Trajectory {
         poses,
         has_node_column,
+        rows: crate::input::model::Rows::World,
     })
 }
 

@@ -13,6 +13,7 @@ use crate::clearance::{
     Swept,
 };
 use crate::error::{InputError, OptionError, OptionKey};
+use crate::input::model::Rows;
 use crate::io::atomic::{self, Staged};
 use crate::io::gltf_in;
 use crate::io::gltf_out::{self, MapNode};
@@ -87,9 +88,10 @@ pub fn parts_at_poses(
     generator: &Path,
     trajectory: &Path,
     relative_to: Option<&str>,
+    rows: Rows,
 ) -> Result<Vec<PosedPart>, String> {
-    let (g, traj, _) =
-        super::read_inputs(generator, trajectory, relative_to).map_err(|e| format!("{e:#}"))?;
+    let (g, traj, _) = super::read_inputs(generator, trajectory, relative_to, rows)
+        .map_err(|e| format!("{e:#}"))?;
     let assigned = poses::assign(&g, &traj, trajectory).map_err(|e| e.to_string())?;
     Ok(g.parts
         .iter()
@@ -279,6 +281,7 @@ pub fn run(opts: &ClearanceOptions) -> anyhow::Result<ClearanceReport> {
         &report.inputs.generator,
         &report.inputs.trajectory,
         report.inputs.relative_to.as_deref(),
+        report.inputs.rows,
     );
     let section = measure_all(&swept, &g, parts, &files, &maps, &opts.asked, &mut staged)?;
     let out = ClearanceReport {

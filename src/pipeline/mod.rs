@@ -28,6 +28,7 @@ use crate::depth::DepthImages;
 use crate::depth::AXIS_NAMES;
 use crate::error::{OptionError, OptionKey};
 use crate::input::grid::{Accuracy, Overrides};
+use crate::input::model::Rows;
 use crate::input::posed::{self, SweepInput};
 use crate::io::exr_depth::{self, ExtraMeta};
 use crate::io::{atomic, gltf_in, gltf_out, trajectory};
@@ -222,7 +223,7 @@ pub fn prepare(opts: &RunOptions) -> anyhow::Result<Prepared> {
                 world: glam::DMat4::IDENTITY,
                 ..part.clone()
             }],
-            warnings: Vec::new(),
+            ..Default::default()
         };
         job.obstacles
             .push(crate::clearance::obstacles_of(&opts.generator, &own)?);
@@ -232,20 +233,29 @@ pub fn prepare(opts: &RunOptions) -> anyhow::Result<Prepared> {
     Ok(job)
 }
 
-/// The generator and trajectory as the sweep takes them: with `relative_to`, the other parts
-/// in the reference node's frame, and the reference part itself
+/// The generator and trajectory as the sweep takes them: rows read as `rows` says; with
+/// `relative_to`, the other parts in the reference node's frame, and the reference part itself
 /// ([`crate::input::relative`]).
 pub fn read_inputs(
     generator: &std::path::Path,
     trajectory: &std::path::Path,
     relative_to: Option<&str>,
+    rows: Rows,
 ) -> anyhow::Result<(
     crate::input::model::Generator,
     crate::input::model::Trajectory,
     Option<crate::input::model::Part>,
 )> {
+    if rows == Rows::Local && relative_to.is_some() {
+        return Err(OptionError::new(
+            OptionKey::RelativeTo,
+            "$relative_to takes world-space rows; with $rows local give the reference's motion in the hierarchy instead (make the part a child of the reference node)",
+        )
+        .into());
+    }
     let g = gltf_in::read_generator(generator)?;
-    let t = trajectory::read_trajectory(trajectory)?;
+    let mut t = trajectory::read_trajectory(trajectory)?;
+    t.rows = rows;
     match relative_to {
         None => Ok((g, t, None)),
         Some(node) => {
@@ -262,6 +272,7 @@ fn build(opts: &RunOptions, outputs: OutputPaths) -> anyhow::Result<Prepared> {
         &opts.generator,
         &opts.trajectory,
         opts.job.relative_to.as_deref(),
+        opts.job.rows,
     )?;
     for w in &generator.warnings {
         tracing::warn!("{}: {w}", opts.generator.display());
@@ -549,6 +560,7 @@ pub fn finish(job: &Prepared, swept: Swept, observer: &dyn Observer) -> anyhow::
                 &opts.generator,
                 &opts.trajectory,
                 opts.job.relative_to.as_deref(),
+                opts.job.rows,
             ),
             &job.obstacles,
             &job.outputs.clearance_maps,
@@ -564,6 +576,7 @@ pub fn finish(job: &Prepared, swept: Swept, observer: &dyn Observer) -> anyhow::
             generator: opts.generator.clone(),
             trajectory: opts.trajectory.clone(),
             relative_to: opts.job.relative_to.clone(),
+            rows: opts.job.rows,
             static_parts: input
                 .parts
                 .iter()

@@ -104,6 +104,10 @@ pub struct InputsReport {
     /// The node whose frame the outputs are in (`relative_to`); none: the world.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub relative_to: Option<String>,
+    /// What the trajectory's rows are: world-space transforms, or each node's own relative to
+    /// its parent (`local`; a robot's joint rows).
+    #[serde(default)]
+    pub rows: crate::input::model::Rows,
     pub parts: Vec<PartRange>,
     /// Parts that no trajectory row names: included once where they stand.
     pub static_parts: Vec<String>,

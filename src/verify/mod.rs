@@ -7,6 +7,7 @@
 //! docs/verify.md states what a pass proves.
 
 pub mod bvh;
+pub mod chain;
 pub mod containment;
 pub mod deviation;
 pub mod geom;
@@ -86,6 +87,9 @@ pub struct VerifyOptions {
     /// The run's `relative_to`: the mesh is in this node's frame, and the other parts move
     /// relative to it (the same reading of the inputs as `run`'s, `input::relative`).
     pub relative_to: Option<String>,
+    /// What the trajectory's rows are: world-space transforms, or each node's own transform
+    /// relative to its parent (`verify::chain`).
+    pub rows: crate::input::model::Rows,
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -174,7 +178,16 @@ pub fn verify(opts: &VerifyOptions, progress: &dyn Progress) -> anyhow::Result<R
         }
     }
     let generator = gltf_in::read_generator(&opts.generator)?;
-    let traj = trajectory::read_trajectory(&opts.trajectory)?;
+    let mut traj = trajectory::read_trajectory(&opts.trajectory)?;
+    traj.rows = opts.rows;
+    let local = opts.rows == crate::input::model::Rows::Local;
+    if local && opts.relative_to.is_some() {
+        return Err(OptionError::new(
+            OptionKey::RelativeTo,
+            "$relative_to takes world-space rows, not $rows local",
+        )
+        .into());
+    }
     let (generator, traj) = match &opts.relative_to {
         None => (generator, traj),
         Some(node) => {
@@ -184,7 +197,14 @@ pub fn verify(opts: &VerifyOptions, progress: &dyn Progress) -> anyhow::Result<R
         }
     };
     let mesh = gltf_in::read_world_triangles(&opts.mesh)?;
-    let assigned = poses::assign(&generator, &traj, &opts.trajectory)?;
+    let rig = match local {
+        true => Some(chain::Rig::new(&generator, &traj, &opts.trajectory)?),
+        false => None,
+    };
+    let assigned = match &rig {
+        Some(rig) => rig.listed()?,
+        None => poses::assign(&generator, &traj, &opts.trajectory)?,
+    };
     let t1 = Instant::now();
 
     let (lo, hi) = mesh.iter().flatten().fold(
@@ -201,9 +221,12 @@ pub fn verify(opts: &VerifyOptions, progress: &dyn Progress) -> anyhow::Result<R
     }
     // Continuous motion: middle poses of sub-intervals whose reach is half the covering
     // radius, so a certified ball still has room for the motion around its pose.
-    let (assigned, motion) = match opts.motion {
-        Motion::Screw => motion::continuous(&generator, assigned, spacing / 2.0, &opts.trajectory)?,
-        Motion::Discrete => {
+    let (assigned, motion) = match (opts.motion, &rig) {
+        (Motion::Screw, Some(rig)) => rig.continuous(spacing / 2.0)?,
+        (Motion::Screw, None) => {
+            motion::continuous(&generator, assigned, spacing / 2.0, &opts.trajectory)?
+        }
+        (Motion::Discrete, _) => {
             let poses = assigned.iter().map(|p| p.len() as u64).sum();
             let check = motion::MotionCheck {
                 model: "discrete",

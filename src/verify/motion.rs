@@ -18,7 +18,7 @@ use crate::input::model::Generator;
 /// Turns this close to half a revolution are refused, as `run` does (179.9°).
 const MAX_TURN: f64 = std::f64::consts::PI - 1.75e-3;
 /// At most this many middle poses in all.
-const MAX_POSES: u64 = 5_000_000;
+pub(super) const MAX_POSES: u64 = 5_000_000;
 
 /// What the verifier did with the motion.
 #[derive(Clone, Debug, Default, Serialize)]
@@ -62,13 +62,13 @@ fn polar(m: &DMat4) -> Option<(DMat3, DVec3, DMat3)> {
 
 /// One interval as a screw about an axis: the relative rigid motion turns by `theta` about the
 /// unit axis `u` through `c` and slides `d` along it (all in the first pose's rigid frame).
-struct Screw {
+pub(super) struct Screw {
     r0: DMat3,
     t0: DVec3,
-    s0: DMat3,
-    s1: DMat3,
+    pub(super) s0: DMat3,
+    pub(super) s1: DMat3,
     u: DVec3,
-    theta: f64,
+    pub(super) theta: f64,
     d: f64,
     /// For a turn: ω × c (stable as θ → 0); for a slide: the whole translation.
     omega_c: DVec3,
@@ -76,7 +76,7 @@ struct Screw {
 }
 
 impl Screw {
-    fn new(m0: &DMat4, m1: &DMat4) -> Result<Screw, &'static str> {
+    pub(super) fn new(m0: &DMat4, m1: &DMat4) -> Result<Screw, &'static str> {
         let (Some((r0, t0, s0)), Some((r1, t1, s1))) = (polar(m0), polar(m1)) else {
             return Err("a pose is singular");
         };
@@ -124,8 +124,8 @@ impl Screw {
     }
 
     /// The pose at s: G₀ · [c + R(sθ)(x - c) + s·d·u] · S(s).
-    fn at(&self, s: f64) -> DMat4 {
-        let stretch = self.s0 * (1.0 - s) + self.s1 * s;
+    pub(super) fn at(&self, s: f64) -> DMat4 {
+        let stretch = self.stretch(s);
         let (rot, shift) = if self.theta < 1e-12 {
             (DMat3::IDENTITY, self.u * (self.d * s))
         } else {
@@ -144,11 +144,16 @@ impl Screw {
 
     /// Speed of the rigid screw at a point x of G₀'s frame: θ·u × x - ω × c + d·u (the
     /// helix's speed, the same at every instant for the same distance from the axis).
-    fn rigid_speed(&self, x: DVec3) -> f64 {
+    pub(super) fn rigid_speed(&self, x: DVec3) -> f64 {
         if self.theta < 1e-12 {
             return self.d;
         }
         (self.theta * self.u.cross(x) - self.omega_c + self.d * self.u).length()
+    }
+
+    /// The stretch at s: (1 - s)S₀ + sS₁.
+    pub(super) fn stretch(&self, s: f64) -> DMat3 {
+        self.s0 * (1.0 - s) + self.s1 * s
     }
 
     /// Bound on the path length of local point p over the interval: the rigid speed at S₀p or

@@ -510,6 +510,7 @@ mod tests {
                 "radii" => "\"paper\"",
                 "against" => "[\"housing.glb\"]",
                 "relative_to" => "\"frame\"",
+                "rows" => "\"local\"",
                 _ => "1",
             };
             let json = format!("{{\"{key}\": {value}}}");

@@ -76,37 +76,83 @@ pub type Part<'a> = (&'a str, &'a [[f32; 3]], &'a [[u32; 3]]);
 
 /// A .glb with one node per part, each with its own mesh, as [`glb`].
 pub fn glb_parts(parts: &[Part]) -> Vec<u8> {
+    let nodes: Vec<Node> = parts
+        .iter()
+        .map(|&(name, positions, triangles)| Node {
+            name,
+            parent: None,
+            translation: [0.0; 3],
+            mesh: Some((positions, triangles)),
+        })
+        .collect();
+    glb_nodes(&nodes)
+}
+
+/// Positions and triangles of one mesh.
+pub type Mesh<'a> = (&'a [[f32; 3]], &'a [[u32; 3]]);
+
+/// One node of [`glb_nodes`]: its name, its parent (an earlier node), its translation, and its
+/// mesh if it has one.
+pub struct Node<'a> {
+    pub name: &'a str,
+    pub parent: Option<usize>,
+    pub translation: [f32; 3],
+    pub mesh: Option<Mesh<'a>>,
+}
+
+/// A .glb with a node hierarchy; the roots form the scene.
+pub fn glb_nodes(tree: &[Node]) -> Vec<u8> {
     let mut bin: Vec<u8> = Vec::new();
     let (mut accessors, mut views, mut meshes, mut nodes) = (vec![], vec![], vec![], vec![]);
-    for (i, (name, positions, triangles)) in parts.iter().enumerate() {
-        let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
-        for p in positions.iter() {
-            for c in 0..3 {
-                lo[c] = lo[c].min(p[c]);
-                hi[c] = hi[c].max(p[c]);
+    for node in tree {
+        let mut json = serde_json::json!({"name": node.name, "translation": node.translation});
+        if let Some((positions, triangles)) = node.mesh {
+            let i = meshes.len();
+            let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+            for p in positions.iter() {
+                for c in 0..3 {
+                    lo[c] = lo[c].min(p[c]);
+                    hi[c] = hi[c].max(p[c]);
+                }
             }
+            let at = bin.len();
+            bin.extend(positions.iter().flatten().flat_map(|x| x.to_le_bytes()));
+            let index_at = bin.len();
+            bin.extend(triangles.iter().flatten().flat_map(|i| i.to_le_bytes()));
+            views.push(
+                serde_json::json!({"buffer": 0, "byteOffset": at, "byteLength": index_at - at}),
+            );
+            views.push(serde_json::json!({"buffer": 0, "byteOffset": index_at, "byteLength": bin.len() - index_at}));
+            accessors.push(
+                serde_json::json!({"bufferView": 2 * i, "componentType": 5126,
+                "count": positions.len(), "type": "VEC3", "min": lo, "max": hi}),
+            );
+            accessors.push(
+                serde_json::json!({"bufferView": 2 * i + 1, "componentType": 5125,
+                "count": 3 * triangles.len(), "type": "SCALAR"}),
+            );
+            meshes.push(serde_json::json!({"primitives": [{"attributes": {"POSITION": 2 * i}, "indices": 2 * i + 1}]}));
+            json["mesh"] = i.into();
         }
-        let at = bin.len();
-        bin.extend(positions.iter().flatten().flat_map(|x| x.to_le_bytes()));
-        let index_at = bin.len();
-        bin.extend(triangles.iter().flatten().flat_map(|i| i.to_le_bytes()));
-        views.push(serde_json::json!({"buffer": 0, "byteOffset": at, "byteLength": index_at - at}));
-        views.push(serde_json::json!({"buffer": 0, "byteOffset": index_at, "byteLength": bin.len() - index_at}));
-        accessors.push(
-            serde_json::json!({"bufferView": 2 * i, "componentType": 5126,
-            "count": positions.len(), "type": "VEC3", "min": lo, "max": hi}),
-        );
-        accessors.push(
-            serde_json::json!({"bufferView": 2 * i + 1, "componentType": 5125,
-            "count": 3 * triangles.len(), "type": "SCALAR"}),
-        );
-        meshes.push(serde_json::json!({"primitives": [{"attributes": {"POSITION": 2 * i}, "indices": 2 * i + 1}]}));
-        nodes.push(serde_json::json!({"name": name, "mesh": i}));
+        nodes.push(json);
     }
+    for (i, node) in tree.iter().enumerate() {
+        if let Some(p) = node.parent {
+            let children = nodes[p]
+                .as_object_mut()
+                .unwrap()
+                .entry("children")
+                .or_insert(serde_json::json!([]));
+            children.as_array_mut().unwrap().push(i.into());
+        }
+    }
+    let roots: Vec<usize> = (0..tree.len())
+        .filter(|&i| tree[i].parent.is_none())
+        .collect();
     let doc = serde_json::json!({
         "asset": {"version": "2.0"},
         "scene": 0,
-        "scenes": [{"nodes": (0..parts.len()).collect::<Vec<_>>()}],
+        "scenes": [{"nodes": roots}],
         "nodes": nodes,
         "meshes": meshes,
         "accessors": accessors,

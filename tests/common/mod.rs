@@ -219,6 +219,7 @@ pub fn dist_to_set(p: V3, tris: &[[V3; 3]]) -> f64 {
 /// A one-part generator at the identity, named "part".
 pub fn generator(positions: Vec<[f32; 3]>, triangles: Vec<[u32; 3]>) -> Generator {
     Generator {
+        nodes: Vec::new(),
         parts: vec![Part {
             node_index: 0,
             node_name: Some("part".into()),
