@@ -185,6 +185,7 @@ fn main() -> anyhow::Result<()> {
     let t0 = Instant::now();
     let report = verify::verify(
         &VerifyOptions {
+            package_dir: Vec::new(),
             rows: Default::default(),
             generator: gen100k,
             trajectory: csv,

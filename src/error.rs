@@ -99,10 +99,11 @@ pub enum OptionKey {
     ClearanceScale,
     RelativeTo,
     Rows,
+    PackageDir,
 }
 
 impl OptionKey {
-    pub const ALL: [OptionKey; 25] = [
+    pub const ALL: [OptionKey; 26] = [
         OptionKey::Resolution,
         OptionKey::Tolerance,
         OptionKey::Delta,
@@ -128,6 +129,7 @@ impl OptionKey {
         OptionKey::ClearanceScale,
         OptionKey::RelativeTo,
         OptionKey::Rows,
+        OptionKey::PackageDir,
     ];
 
     /// The library's name: snake_case, the same as the job.json key where there is one.
@@ -158,6 +160,7 @@ impl OptionKey {
             OptionKey::ClearanceScale => "clearance_scale",
             OptionKey::RelativeTo => "relative_to",
             OptionKey::Rows => "rows",
+            OptionKey::PackageDir => "package_dir",
         }
     }
 

@@ -95,6 +95,10 @@ pub struct JobOptions {
     /// of different nodes pair by their frame or time). A --robot job's rows are always local.
     #[arg(long, value_enum, default_value_t)]
     pub rows: Rows,
+    /// A folder holding the packages a --robot URDF names (`package://NAME/path` is read as
+    /// DIR/NAME/path; a folder called NAME above the URDF is tried too). Repeatable.
+    #[arg(long, value_name = "DIR")]
+    pub package_dir: Vec<PathBuf>,
 }
 
 /// A whole job as one file, as `cluster submit` writes it for its array tasks (`sweep --job
@@ -114,7 +118,7 @@ pub struct JobFile {
 }
 
 /// The keys of job.json: [`JobOptions`]'s fields, in order (a test holds them to the struct).
-pub const JOB_KEYS: [&str; 17] = [
+pub const JOB_KEYS: [&str; 18] = [
     "resolution",
     "tolerance",
     "delta",
@@ -132,6 +136,7 @@ pub const JOB_KEYS: [&str; 17] = [
     "clearance_scale",
     "relative_to",
     "rows",
+    "package_dir",
 ];
 
 /// An output file stem: a name, not empty and not a path.

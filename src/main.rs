@@ -153,12 +153,15 @@ struct WatchArgs {
 
 #[derive(Args)]
 struct VerifyArgs {
-    /// The generator mesh, as given to `run`.
-    #[arg(long, value_name = "FILE")]
+    /// The generator mesh (or --robot URDF), as given to `run`.
+    #[arg(long, visible_alias = "robot", value_name = "FILE")]
     generator: PathBuf,
-    /// The poses, as given to `run`.
-    #[arg(long, value_name = "FILE")]
+    /// The poses (or --joints CSV), as given to `run`.
+    #[arg(long, visible_alias = "joints", value_name = "FILE")]
     trajectory: PathBuf,
+    /// The run's --package-dir folders (for a robot's meshes).
+    #[arg(long, value_name = "DIR")]
+    package_dir: Vec<PathBuf>,
     /// The mesh to check: any glTF 2.0 file (all triangle primitives, node transforms applied).
     #[arg(long, value_name = "FILE")]
     mesh: PathBuf,
@@ -235,17 +238,21 @@ struct RunArgs {
     /// and output folder, as `cluster submit` writes it (job.json in the shard folder).
     #[arg(long = "job", value_name = "FILE", conflicts_with_all = ["JobOptions", "bare_names"])]
     job_file: Option<PathBuf>,
-    /// The generator mesh: glTF 2.0 (.glb, or .gltf with its buffers beside it).
+    /// The generator mesh: glTF 2.0 (.glb, or .gltf with its buffers beside it); or, as
+    /// --robot, a URDF robot description (its rows are then joint values, --joints).
     #[arg(
         long,
+        visible_alias = "robot",
         value_name = "FILE",
         required_unless_present = "job_file",
         conflicts_with = "job_file"
     )]
     generator: Option<PathBuf>,
-    /// The poses: CSV with m00..m33 or tx,ty,tz,qw,qx,qy,qz columns (see the README).
+    /// The poses: CSV with m00..m33 or tx,ty,tz,qw,qx,qy,qz columns (see the README); or, as
+    /// --joints, a robot's joint CSV: a header time,<joint names>, radians or metres.
     #[arg(
         long,
+        visible_alias = "joints",
         value_name = "FILE",
         required_unless_present = "job_file",
         conflicts_with = "job_file"
@@ -642,6 +649,7 @@ fn verify(args: VerifyArgs) -> anyhow::Result<ExitCode> {
         motion: args.motion,
         relative_to: args.relative_to,
         rows: args.rows,
+        package_dir: args.package_dir,
     };
     let bar = if args.quiet || args.json {
         ProgressBar::hidden()

@@ -268,7 +268,8 @@ ALSO_OUTPUTS = {"stl": "swept.stl", "ply": "swept.ply", "obj": "swept.obj"}  # j
 
 JOB_KEYS = ("resolution", "tolerance", "delta", "epsilon", "backend", "name", "motion",
             "target_triangles", "keep_start_mesh", "also", "classify", "radii", "against",
-            "require_clearance", "clearance_scale", "relative_to", "rows")
+            "require_clearance", "clearance_scale", "relative_to", "rows",
+            "package_dir")
 MOTIONS = ("screw", "discrete")  # job.json `motion`: the motion between rows covered, or not
 CLASSIFY_METHODS = ("auto", "flood", "axes")  # job.json `classify`: hidden pockets opened or not
 RADII = ("exact", "paper")  # job.json `radii`: δ and ε (sampling.py assumes the default, exact)

@@ -119,7 +119,7 @@ EXPECTED = {
                 "also": {"stl": "swept.stl", "ply": "swept.ply", "obj": "swept.obj"}},
     "job_keys": ["resolution", "tolerance", "delta", "epsilon", "backend", "name", "motion",
                  "target_triangles", "keep_start_mesh", "also", "classify", "radii", "against",
-                 "require_clearance", "clearance_scale", "relative_to", "rows"],
+                 "require_clearance", "clearance_scale", "relative_to", "rows", "package_dir"],
     "motions": ["screw", "discrete"],
     "classify_methods": ["auto", "flood", "axes"],
     "radii": ["exact", "paper"],

@@ -88,7 +88,7 @@ pub fn job_file(
             .map_err(|e| InputError::new(p, format!("cannot open it: {e}"), "check the path"))?)
     };
     let mut options = run.job_options(Some(backend));
-    for a in &mut options.against {
+    for a in options.against.iter_mut().chain(&mut options.package_dir) {
         *a = abs(a)?;
     }
     Ok(JobFile {

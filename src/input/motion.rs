@@ -244,18 +244,10 @@ fn sym_norm(s: &DMat3) -> f64 {
         .fold(0.0, f64::max)
 }
 
-/// An upper bound of the spectral norm of any 3x3 matrix: √(‖A‖₁·‖A‖∞).
+/// An upper bound of the spectral norm of any 3x3 matrix: √‖AᵀA‖ (AᵀA is symmetric, and its
+/// spectral norm is the square of A's): 1 for a rotation, up to rounding.
 pub(crate) fn norm_bound(a: &DMat3) -> f64 {
-    let col = [a.x_axis, a.y_axis, a.z_axis]
-        .iter()
-        .map(|c| c.abs().element_sum())
-        .fold(0.0, f64::max);
-    let t = a.transpose();
-    let row = [t.x_axis, t.y_axis, t.z_axis]
-        .iter()
-        .map(|r| r.abs().element_sum())
-        .fold(0.0, f64::max);
-    (col * row).sqrt()
+    sym_norm(&(a.transpose() * *a)).sqrt()
 }
 
 /// How an interval's pose is made. (The screw is kept inline: world rows have one interval per

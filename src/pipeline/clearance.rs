@@ -89,10 +89,17 @@ pub fn parts_at_poses(
     trajectory: &Path,
     relative_to: Option<&str>,
     rows: Rows,
+    package_dirs: &[PathBuf],
 ) -> Result<Vec<PosedPart>, String> {
-    let (g, traj, _) = super::read_inputs(generator, trajectory, relative_to, rows)
+    let (g, traj, _) = super::read_inputs(generator, trajectory, relative_to, rows, package_dirs)
         .map_err(|e| format!("{e:#}"))?;
-    let assigned = poses::assign(&g, &traj, trajectory).map_err(|e| e.to_string())?;
+    let assigned = match traj.rows {
+        Rows::World => poses::assign(&g, &traj, trajectory),
+        Rows::Local => {
+            crate::verify::chain::Rig::new(&g, &traj, trajectory).and_then(|r| r.listed())
+        }
+    }
+    .map_err(|e| e.to_string())?;
     Ok(g.parts
         .iter()
         .zip(assigned)
@@ -282,6 +289,7 @@ pub fn run(opts: &ClearanceOptions) -> anyhow::Result<ClearanceReport> {
         &report.inputs.trajectory,
         report.inputs.relative_to.as_deref(),
         report.inputs.rows,
+        &report.inputs.package_dir,
     );
     let section = measure_all(&swept, &g, parts, &files, &maps, &opts.asked, &mut staged)?;
     let out = ClearanceReport {

@@ -241,6 +241,7 @@ pub fn read_inputs(
     trajectory: &std::path::Path,
     relative_to: Option<&str>,
     rows: Rows,
+    package_dirs: &[PathBuf],
 ) -> anyhow::Result<(
     crate::input::model::Generator,
     crate::input::model::Trajectory,
@@ -253,9 +254,21 @@ pub fn read_inputs(
         )
         .into());
     }
-    let g = gltf_in::read_generator(generator)?;
-    let mut t = trajectory::read_trajectory(trajectory)?;
-    t.rows = rows;
+    let robot = crate::io::urdf::is_robot(generator);
+    if robot && relative_to.is_some() {
+        return Err(OptionError::new(
+            OptionKey::RelativeTo,
+            "$relative_to takes world-space rows, and a robot's joint rows are in parent space",
+        )
+        .into());
+    }
+    let (g, t) = if robot {
+        crate::io::urdf::read_inputs(generator, trajectory, package_dirs)?
+    } else {
+        let mut t = trajectory::read_trajectory(trajectory)?;
+        t.rows = rows;
+        (gltf_in::read_generator(generator)?, t)
+    };
     match relative_to {
         None => Ok((g, t, None)),
         Some(node) => {
@@ -273,6 +286,7 @@ fn build(opts: &RunOptions, outputs: OutputPaths) -> anyhow::Result<Prepared> {
         &opts.trajectory,
         opts.job.relative_to.as_deref(),
         opts.job.rows,
+        &opts.job.package_dir,
     )?;
     for w in &generator.warnings {
         tracing::warn!("{}: {w}", opts.generator.display());
@@ -561,6 +575,7 @@ pub fn finish(job: &Prepared, swept: Swept, observer: &dyn Observer) -> anyhow::
                 &opts.trajectory,
                 opts.job.relative_to.as_deref(),
                 opts.job.rows,
+                &opts.job.package_dir,
             ),
             &job.obstacles,
             &job.outputs.clearance_maps,
@@ -576,7 +591,12 @@ pub fn finish(job: &Prepared, swept: Swept, observer: &dyn Observer) -> anyhow::
             generator: opts.generator.clone(),
             trajectory: opts.trajectory.clone(),
             relative_to: opts.job.relative_to.clone(),
-            rows: opts.job.rows,
+            rows: if crate::io::urdf::is_robot(&opts.generator) {
+                Rows::Local
+            } else {
+                opts.job.rows
+            },
+            package_dir: opts.job.package_dir.clone(),
             static_parts: input
                 .parts
                 .iter()

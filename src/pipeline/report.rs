@@ -108,6 +108,9 @@ pub struct InputsReport {
     /// its parent (`local`; a robot's joint rows).
     #[serde(default)]
     pub rows: crate::input::model::Rows,
+    /// Where a robot's `package://` meshes were looked for.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub package_dir: Vec<PathBuf>,
     pub parts: Vec<PartRange>,
     /// Parts that no trajectory row names: included once where they stand.
     pub static_parts: Vec<String>,

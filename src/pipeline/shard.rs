@@ -471,13 +471,9 @@ impl RunOptions {
     pub fn spec(&self) -> anyhow::Result<JobSpec> {
         let mut options = self.job_options(None);
         // Obstacles are read at the merge, maybe elsewhere: absolute, as the inputs.
-        for a in &mut options.against {
+        for a in options.against.iter_mut().chain(&mut options.package_dir) {
             *a = std::fs::canonicalize(&*a).map_err(|e| {
-                InputError::new(
-                    a,
-                    format!("cannot open the obstacle file: {e}"),
-                    "check the path",
-                )
+                InputError::new(a, format!("cannot open it: {e}"), "check the path")
             })?;
         }
         JobSpec::hashing(

@@ -9,7 +9,7 @@
 //! every point's speed. L is built from the part's own node up to the root: a node's screw
 //! moves a point at its rigid helix speed at the stretched point plus the stretch's own
 //! motion, and carries the speed of the point within its frame through its linear map (at most
-//! its largest singular value, bounded here by the Frobenius norm).
+//! its largest singular value, bounded through the Gram matrix).
 
 use std::collections::HashMap;
 use std::path::Path;
@@ -302,7 +302,7 @@ impl<'a> Rig<'a> {
             let mut speed = 0.0;
             for (held, piece) in pieces.iter().rev() {
                 match piece {
-                    None => speed *= frobenius(&DMat3::from_mat4(*held)),
+                    None => speed *= sigma_bound(&DMat3::from_mat4(*held)),
                     Some((screw, a, b)) => speed = screw.chain_speed((*a, *b), q, speed),
                 }
                 q = held.transform_point3(q);
@@ -315,9 +315,15 @@ impl<'a> Rig<'a> {
     }
 }
 
-/// The Frobenius norm: at least the largest singular value.
-fn frobenius(a: &DMat3) -> f64 {
-    (a.x_axis.length_squared() + a.y_axis.length_squared() + a.z_axis.length_squared()).sqrt()
+/// At least the largest singular value: the square root of the largest column sum of |AᵀA|
+/// (an induced norm of AᵀA bounds its largest eigenvalue, σ_max²); 1 for a rotation.
+fn sigma_bound(a: &DMat3) -> f64 {
+    let g = a.transpose() * *a;
+    [g.x_axis, g.y_axis, g.z_axis]
+        .iter()
+        .map(|c| c.abs().element_sum())
+        .fold(0.0, f64::max)
+        .sqrt()
 }
 
 impl Screw {
@@ -328,10 +334,10 @@ impl Screw {
     pub(super) fn chain_speed(&self, (a, b): (f64, f64), q0: DVec3, inner: f64) -> f64 {
         let d = b - a;
         let (sa, sb) = (self.stretch(a), self.stretch(b));
-        let norm = frobenius(&sa).max(frobenius(&sb));
+        let norm = sigma_bound(&sa).max(sigma_bound(&sb));
         let ds = self.s1 - self.s0;
         let helix = self.rigid_speed(sa * q0).max(self.rigid_speed(sb * q0));
-        let rate = self.theta * norm + frobenius(&ds);
+        let rate = self.theta * norm + sigma_bound(&ds);
         d * (helix + (ds * q0).length()) + (d * rate + norm) * inner
     }
 }

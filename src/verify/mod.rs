@@ -90,6 +90,8 @@ pub struct VerifyOptions {
     /// What the trajectory's rows are: world-space transforms, or each node's own transform
     /// relative to its parent (`verify::chain`).
     pub rows: crate::input::model::Rows,
+    /// Where a robot's `package://` meshes are (`io::urdf`).
+    pub package_dir: Vec<PathBuf>,
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -177,10 +179,14 @@ pub fn verify(opts: &VerifyOptions, progress: &dyn Progress) -> anyhow::Result<R
             .into());
         }
     }
-    let generator = gltf_in::read_generator(&opts.generator)?;
-    let mut traj = trajectory::read_trajectory(&opts.trajectory)?;
-    traj.rows = opts.rows;
-    let local = opts.rows == crate::input::model::Rows::Local;
+    let (generator, traj) = if crate::io::urdf::is_robot(&opts.generator) {
+        crate::io::urdf::read_inputs(&opts.generator, &opts.trajectory, &opts.package_dir)?
+    } else {
+        let mut traj = trajectory::read_trajectory(&opts.trajectory)?;
+        traj.rows = opts.rows;
+        (gltf_in::read_generator(&opts.generator)?, traj)
+    };
+    let local = traj.rows == crate::input::model::Rows::Local;
     if local && opts.relative_to.is_some() {
         return Err(OptionError::new(
             OptionKey::RelativeTo,

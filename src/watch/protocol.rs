@@ -397,6 +397,21 @@ pub fn parse_job_options(path: &Path, bytes: &[u8]) -> Result<JobOptions, InputE
             .in_column("against"));
         }
     }
+    // A robot's package folders are folders of the job folder: nothing outside it is read.
+    for d in &opts.package_dir {
+        let inside = d.components().count() > 0
+            && d.components().all(|c| {
+                matches!(c, std::path::Component::Normal(n) if !n.to_string_lossy().starts_with('.'))
+            });
+        if !inside {
+            return Err(InputError::new(
+                path,
+                format!("\"package_dir\": {:?} is not a folder inside the job folder", d.display().to_string()),
+                "put the robot's packages into a folder of the job folder and give its relative path, such as \"packages\" (no leading dot, no ..)",
+            )
+            .in_column("package_dir"));
+        }
+    }
     if opts.resolution.is_some() && opts.tolerance.is_some() {
         return Err(InputError::new(
             path,
@@ -431,6 +446,11 @@ pub fn run_options(
         .against
         .iter()
         .map(|a| id.out_dir(root).join(a))
+        .collect();
+    run.job.package_dir = options
+        .package_dir
+        .iter()
+        .map(|d| id.out_dir(root).join(d))
         .collect();
     run.overwrite = true;
     run
@@ -511,6 +531,7 @@ mod tests {
                 "against" => "[\"housing.glb\"]",
                 "relative_to" => "\"frame\"",
                 "rows" => "\"local\"",
+                "package_dir" => "[\"packages\"]",
                 _ => "1",
             };
             let json = format!("{{\"{key}\": {value}}}");
