@@ -201,6 +201,50 @@ def read_glb_mesh(path):
     return points, tris
 
 
+def write_glb(doc, binary):
+    """The bytes of a .glb holding `doc` (a dict) and the binary chunk `binary`."""
+    text = json.dumps(doc, separators=(",", ":")).encode("utf-8")
+    text += b" " * (-len(text) % 4)
+    binary = bytes(binary) + b"\0" * (-len(binary) % 4)
+    chunks = struct.pack("<II", len(text), CHUNK_JSON) + text
+    if binary:
+        chunks += struct.pack("<II", len(binary), CHUNK_BIN) + binary
+    return struct.pack("<III", GLB_MAGIC, 2, 12 + len(chunks)) + chunks
+
+
+def column_major(m):
+    """A row-major 4x4 as glTF's `matrix` (column-major, 16 numbers)."""
+    return [float(m[r][c]) for c in range(4) for r in range(4)]
+
+
+def rig_document(doc, tree):
+    """The exported document with its nodes replaced by the kinematic tree `tree`: a list of
+    (name, parent index into `tree` or None, local matrix at the export frame in glTF space,
+    name of the exported mesh node it holds or None), parents first. Each tree node keeps the
+    mesh of the exported node of that name; the exporter's own nodes, skins and animations go
+    (their indices no longer hold). The daemon reads it with rows in parent space (job.json
+    `rows: "local"`), each row setting one node's transform relative to its parent."""
+    meshes = {n.get("name"): n["mesh"] for n in doc.get("nodes", []) if "mesh" in n}
+    nodes = []
+    for i, (name, parent, local, mesh) in enumerate(tree):
+        if parent is not None and not 0 <= parent < i:
+            raise ValueError(f"the parent of '{name}' does not come before it")
+        node = {"name": name, "matrix": column_major(local)}
+        if mesh is not None:
+            if mesh not in meshes:
+                raise ValueError(f"the glTF exporter wrote no mesh node named '{mesh}'")
+            node["mesh"] = meshes[mesh]
+        nodes.append(node)
+    for i, (_, parent, _, _) in enumerate(tree):
+        if parent is not None:
+            nodes[parent].setdefault("children", []).append(i)
+    out = {k: v for k, v in doc.items() if k not in ("nodes", "scenes", "scene", "skins", "animations")}
+    out["nodes"] = nodes
+    out["scenes"] = [{"nodes": [i for i, t in enumerate(tree) if t[1] is None]}]
+    out["scene"] = 0
+    return out
+
+
 # ---------------------------------------------------------------------------------------------
 # Trajectory CSV (node + matrix form, see src/io/trajectory.rs)
 
@@ -225,10 +269,12 @@ def _number(x):
     return repr(x + 0.0)  # shortest round-trip text; -0.0 becomes 0.0
 
 
-def trajectory_csv(rows):
-    """CSV text for rows of (frame, node name, 4x4 matrix in glTF space)."""
-    lines = ["# written by the sweptvol Blender add-on: each row maps the node as exported to "
-             "its placement at that frame (glTF space)",
+def trajectory_csv(rows, local=False):
+    """CSV text for rows of (frame, node name, 4x4 matrix in glTF space): world-space rows, or
+    with `local` each node's transform relative to its parent (job.json `rows: "local"`)."""
+    what = ("sets the node's transform relative to its parent at that frame (glTF space)" if local
+            else "maps the node as exported to its placement at that frame (glTF space)")
+    lines = [f"# written by the sweptvol Blender add-on: each row {what}",
              ",".join(["frame", "node"] + MATRIX_COLUMNS)]
     for frame, node, m in rows:
         values = [m[r][c] for r in range(4) for c in range(4)]

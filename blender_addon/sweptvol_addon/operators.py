@@ -91,22 +91,126 @@ def evaluate(context, objects, frames, ref):
         for o in objects:
             ev = o.evaluated_get(depsgraph)
             out[f][o.name] = np.array(ev.matrix_world, dtype=np.float64)
-            co, ntris = _mesh_coords(o, depsgraph)
-            if o.name not in ref:
-                if ntris == 0:
-                    raise ValueError(f"'{o.name}' has no faces at frame {f:g}: nothing to sweep")
-                size = float(np.linalg.norm(co.max(axis=0) - co.min(axis=0))) if len(co) else 0.0
-                ref[o.name] = (co, 1e-5 * max(size, 1e-6))
+            _check_rigid(o, depsgraph, f, ref)
+    return out
+
+
+def _check_rigid(o, depsgraph, f, ref):
+    """Hold `o`'s evaluated mesh at frame f to its first one (kept in `ref`), or raise."""
+    co, ntris = _mesh_coords(o, depsgraph)
+    if o.name not in ref:
+        if ntris == 0:
+            raise ValueError(f"'{o.name}' has no faces at frame {f:g}: nothing to sweep")
+        size = float(np.linalg.norm(co.max(axis=0) - co.min(axis=0))) if len(co) else 0.0
+        ref[o.name] = (co, 1e-5 * max(size, 1e-6))
+        return
+    co0, tol = ref[o.name]
+    if co.shape != co0.shape:
+        raise ValueError(f"'{o.name}' cannot be swept as a rigid part: its vertex count "
+                         f"changes at frame {f:g} ({deform_cause(o)})")
+    err = float(np.abs(co - co0).max()) if len(co) else 0.0
+    if err > tol:
+        raise ValueError(f"'{o.name}' cannot be swept as a rigid part: its mesh deforms "
+                         f"(by {err:.3g} at frame {f:g}); {deform_cause(o)}. Apply or "
+                         "remove the deformation, parent the mesh to one bone instead of "
+                         "skinning it (Ctrl+P > Bone), or sweep a rigid proxy")
+
+
+# ---------------------------------------------------------------------------------------------
+# Articulated motion: parented objects and bones as a kinematic tree, rows in parent space
+
+
+def rig_tree(objects):
+    """The kinematic tree above the swept objects, parents first: dicts with `name` (the glTF
+    node's), `parent` (an index into the list, or None), `obj` (the object, or the armature of
+    a bone), `bone` (a bone's name, or None) and `mesh` (True for a swept object). Empty when no
+    swept object has a parent: then world-space rows say everything."""
+    if not any(o.parent is not None for o in objects):
+        return []
+    tree, index = [], {}
+
+    def add(key, name, parent, obj, bone):
+        index[key] = len(tree)
+        tree.append({"name": name, "parent": parent, "obj": obj, "bone": bone, "mesh": False})
+        return index[key]
+
+    def of_object(o):
+        if ("OB", o.name) in index:
+            return index[("OB", o.name)]
+        parent = None
+        if o.parent is not None:
+            if o.parent_type == "BONE" and o.parent.type == "ARMATURE" and o.parent_bone:
+                parent = of_bone(o.parent, o.parent_bone)
+            else:
+                parent = of_object(o.parent)
+        return add(("OB", o.name), o.name, parent, o, None)
+
+    def of_bone(arm, name):
+        if ("BONE", arm.name, name) in index:
+            return index[("BONE", arm.name, name)]
+        bone = arm.data.bones.get(name)
+        if bone is None:
+            raise ValueError(f"'{arm.name}' has no bone '{name}' to parent to")
+        parent = of_bone(arm, bone.parent.name) if bone.parent else of_object(arm)
+        return add(("BONE", arm.name, name), f"{arm.name}:{name}", parent, arm, name)
+
+    for o in objects:
+        tree[of_object(o)]["mesh"] = True
+    names = [t["name"] for t in tree]
+    if len(set(names)) != len(names):
+        raise ValueError("two nodes of the rig would share a name (an object named like "
+                         "'Armature:Bone'): rename it")
+    return tree
+
+
+def _node_world(node, depsgraph):
+    """A tree node's world matrix (Blender space) at the depsgraph's frame."""
+    ev = node["obj"].evaluated_get(depsgraph)
+    world = np.array(ev.matrix_world, dtype=np.float64)
+    if node["bone"] is None:
+        return world
+    pose = ev.pose if ev.pose is not None else node["obj"].pose
+    return world @ np.array(pose.bones[node["bone"]].matrix, dtype=np.float64)
+
+
+def evaluate_rig(context, objects, frames, ref, tree):
+    """({frame: {node name: world}}, {frame: {node name: local}}) for every node of `tree` at
+    each frame (Blender space; local = parent's world⁻¹ · world), with the rigid check of
+    `evaluate` on the swept objects."""
+    scene = context.scene
+    worlds, locals_ = {}, {}
+    for f in frames:
+        set_frame(scene, f)
+        depsgraph = context.evaluated_depsgraph_get()
+        for o in objects:
+            _check_rigid(o, depsgraph, f, ref)
+        w = [_node_world(n, depsgraph) for n in tree]
+        worlds[f] = {n["name"]: w[i] for i, n in enumerate(tree)}
+        locals_[f] = {}
+        for i, n in enumerate(tree):
+            p = n["parent"]
+            locals_[f][n["name"]] = w[i] if p is None else np.linalg.solve(w[p], w[i])
+    return worlds, locals_
+
+
+def rig_vertices(tree, worlds, frame, ref):
+    """{node name: the vertices of every swept object under the node, in the node's frame at
+    `frame`} (`ref` holds each object's local vertices)."""
+    out = {}
+    for i, n in enumerate(tree):
+        pts = []
+        for j, m in enumerate(tree):
+            if not m["mesh"]:
                 continue
-            co0, tol = ref[o.name]
-            if co.shape != co0.shape:
-                raise ValueError(f"'{o.name}' cannot be swept as a rigid part: its vertex count "
-                                 f"changes at frame {f:g} ({deform_cause(o)})")
-            err = float(np.abs(co - co0).max()) if len(co) else 0.0
-            if err > tol:
-                raise ValueError(f"'{o.name}' cannot be swept as a rigid part: its mesh deforms "
-                                 f"(by {err:.3g} at frame {f:g}); {deform_cause(o)}. Apply or "
-                                 "remove the deformation, or sweep a rigid proxy")
+            k = j
+            while k is not None and k != i:
+                k = tree[k]["parent"]
+            if k is None:
+                continue
+            co = ref[m["name"]][0]
+            rel = np.linalg.solve(worlds[frame][n["name"]], worlds[frame][m["name"]])
+            pts.append(co @ rel[:3, :3].T + rel[:3, 3])
+        out[n["name"]] = np.concatenate(pts) if pts else np.zeros((0, 3))
     return out
 
 
@@ -120,14 +224,19 @@ def deviation_threshold(options, placements, vertices):
     return sampling.threshold_for_resolution(extent, options["resolution"])
 
 
-def sample(context, objects, frames, options, halvings):
+def sample(context, objects, frames, options, halvings, tree=()):
     """Each object's frames and world matrices (Blender space), and the sampling record.
 
     With continuous motion the frames of each object are refined where Blender's motion strays
     from the screw motion the daemon covers (sampling.refine, at most `halvings` halvings of the
     step); with discrete motion every object keeps the given frames and the record is None.
+    With a rig `tree` (rig_tree) the placements are each node's local matrix, refined where a
+    node strays from the screw in its parent's frame, each by the threshold over the tree's
+    depth (the deviations of a chain add up).
     Returns ({name: [frame]}, {frame: {name: 4x4}}, record or None)."""
     ref = {}
+    if tree:
+        return _sample_rig(context, objects, frames, options, halvings, tree, ref)
     placements = evaluate(context, objects, frames, ref)
     if options.get("motion") == "discrete" or len(frames) < 2:
         return {o.name: list(frames) for o in objects}, placements, None
@@ -138,6 +247,28 @@ def sample(context, objects, frames, options, halvings):
         halvings)
     step = frames[1] - frames[0]
     record = sampling.summary(records, threshold, step, halvings)
+    return {name: rec.frames for name, rec in records.items()}, placements, record
+
+
+def _sample_rig(context, objects, frames, options, halvings, tree, ref):
+    worlds, placements = evaluate_rig(context, objects, frames, ref, tree)
+    if options.get("motion") == "discrete" or len(frames) < 2:
+        return {n["name"]: list(frames) for n in tree}, placements, None
+    meshes = {o.name: ref[o.name][0] for o in objects}
+    placed = {f: {name: by_name[name] for name in meshes} for f, by_name in worlds.items()}
+    threshold = deviation_threshold(options, placed, meshes)
+    depth = 1
+    for n in tree:
+        d, p = 1, n["parent"]
+        while p is not None:
+            d, p = d + 1, tree[p]["parent"]
+        depth = max(depth, d)
+    vertices = rig_vertices(tree, worlds, frames[0], ref)
+    records = sampling.refine(
+        frames, placements, lambda fs: evaluate_rig(context, objects, fs, ref, tree)[1], vertices,
+        threshold / depth, halvings)
+    step = frames[1] - frames[0]
+    record = sampling.summary(records, threshold / depth, step, halvings)
     return {name: rec.frames for name, rec in records.items()}, placements, record
 
 
@@ -225,6 +356,10 @@ def submit(context, objects, frames, options, halvings=sampling.DEFAULT_HALVINGS
         if len(objects) < 2:
             raise ValueError("select the objects to sweep relative to the reference, besides it")
         options = dict(options, relative_to=reference.name)
+    # Parents and bones go as a hierarchy with rows in parent space; relative to a reference
+    # the rows are world-space (the daemon reads them in the reference's frame), refined where
+    # the motion strays from the screw.
+    tree = rig_tree(objects) if reference is None else []
     p = prefs.get(context)
     folder = prefs.watch_folder(p)
     if not folder:
@@ -234,7 +369,8 @@ def submit(context, objects, frames, options, halvings=sampling.DEFAULT_HALVINGS
     old_frame, old_sub = scene.frame_current, scene.frame_subframe
     partial = None
     try:
-        object_frames, placements, record = sample(context, objects, frames, options, halvings)
+        object_frames, placements, record = sample(context, objects, frames, options, halvings,
+                                                   tree)
         if reference is not None:
             # Relative rows pair by time: every object at every frame any of them has (the
             # refinement evaluated every object at each of them).
@@ -250,7 +386,22 @@ def submit(context, objects, frames, options, halvings=sampling.DEFAULT_HALVINGS
         if obstacles:
             export_generator(context, list(obstacles), os.path.join(partial, exchange.OBSTACLES_GLB))
             options = dict(options, against=[exchange.OBSTACLES_GLB])
-        doc, _ = exchange.read_glb(glb)
+        doc, binary = exchange.read_glb(glb)
+        if tree:
+            # The rig: nodes with their local matrices, rows in parent space.
+            first = placements[frames[0]]
+            rig = [(n["name"], n["parent"], exchange.blender_to_gltf(first[n["name"]].tolist()),
+                    n["name"] if n["mesh"] else None) for n in tree]
+            with open(glb, "wb") as f:
+                f.write(exchange.write_glb(exchange.rig_document(doc, rig), binary))
+            rows = [(f, n["name"], exchange.blender_to_gltf(placements[f][n["name"]].tolist()))
+                    for n in tree for f in object_frames[n["name"]]]
+            options = dict(options, name=label[:200], rows="local")
+            exchange.write_job_inputs(partial, exchange.trajectory_csv(rows, local=True), options,
+                                      record)
+            job_dir = exchange.commit_job(partial)
+            partial = None
+            return job_dir, record
         placed = {}
         for node_name, w in exchange.mesh_node_worlds(doc):
             placed.setdefault(node_name, []).append(w)

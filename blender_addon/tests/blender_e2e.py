@@ -387,6 +387,80 @@ def continuous_motion(scene, settings, operators, exchange, coll):
         bpy.data.objects.remove(o)
 
 
+def articulated(scene, settings, operators, exchange, coll):
+    """A two-bone armature, a bar parented to each bone, both bones turning (60° and 90°) between
+    two sampled frames: the add-on exports the bones as nodes with rows in parent space, the
+    refinement has nothing to halve (each bone turns about one axis, the screw in its parent's
+    frame), and the result encloses both bars at every 0.02 frame; the discrete result does not."""
+    from mathutils import Matrix
+
+    data = bpy.data.armatures.new("RigData")
+    rig = bpy.data.objects.new("Rig", data)
+    scene.collection.objects.link(rig)
+    select([rig])
+    bpy.ops.object.mode_set(mode="EDIT")
+    upper = data.edit_bones.new("Upper")
+    upper.head, upper.tail = (0.0, 0.0, 0.0), (1.0, 0.0, 0.0)
+    fore = data.edit_bones.new("Fore")
+    fore.head, fore.tail = (1.0, 0.0, 0.0), (1.8, 0.0, 0.0)
+    fore.parent, fore.use_connect = upper, True
+    bpy.ops.object.mode_set(mode="OBJECT")
+    bars = []
+    for bone, (start, length) in (("Upper", (0.0, 1.0)), ("Fore", (1.0, 0.8))):
+        bpy.ops.mesh.primitive_cube_add(size=1.0, location=(0, 0, 0))
+        bar = bpy.context.active_object
+        bar.name = f"{bone} bar"
+        bar.data.transform(Matrix.Diagonal((length, 0.1, 0.1, 1.0)))
+        bar.parent, bar.parent_type, bar.parent_bone = rig, "BONE", bone
+        bpy.context.view_layer.update()
+        bar.matrix_world = Matrix.Translation((start + length / 2, 0.0, 0.0))
+        bars.append(bar)
+    for name, angle in (("Upper", 60.0), ("Fore", 90.0)):
+        pb = rig.pose.bones[name]
+        pb.rotation_mode = "XYZ"
+        for f, a in ((1, 0.0), (2, angle)):
+            pb.rotation_euler = (0.0, 0.0, math.radians(a))  # about the bone's z: a swing in x-y
+            pb.keyframe_insert("rotation_euler", frame=f)
+    set_interpolation(rig, "LINEAR")
+    scene.frame_set(2)
+    centre = bars[1].matrix_world.translation
+    check(abs(centre.z) < 1e-6 and centre.y > 0.5,
+          f"the rig does not swing in the x-y plane: the fore bar's centre at {tuple(centre)}")
+    scene.frame_set(1)
+
+    settings.use_scene_range = False
+    settings.frame_start, settings.frame_end, settings.frame_step = 1.0, 2.0, 1.0
+    settings.motion, settings.halvings = "screw", 6
+    fine = [1.0 + 0.02 * k for k in range(51)]
+    select(bars)
+    check(bpy.ops.sweptvol.compute(wait=True, timeout=300) == {"FINISHED"}, "compute the rig")
+    job = operators.JOBS[-1]
+    check(job["state"] == "done", f"rig: job state {job['state']}")
+    swept = coll.objects.get(job["imported"])
+    job_json = json.load(open(os.path.join(job["dir"], exchange.JOB_JSON)))
+    rows = open(os.path.join(job["dir"], exchange.TRAJECTORY)).read()
+    check(job_json.get("rows") == "local" and "Rig:Fore," in rows and "Fore bar," in rows,
+          f"the rig was not sent as a hierarchy: {job_json}")
+    record = exchange.read_sampling(job["dir"])
+    check(record["rows_added"] == 0, f"a bone turning about one axis is the screw in its parent's "
+          f"frame: nothing should be halved ({record['rows_added']} added)")
+    for bar in bars:
+        n, out, where = enclosure(scene, bar, swept, fine)
+        check(out == 0, f"rig: {out} of {n} points of '{bar.name}' are outside the result, e.g. {where}")
+    log(f"armature: both bars enclosed at {len(fine)} sub-frames, rows in parent space, "
+        f"{swept['sweptvol_poses']} poses rendered")
+
+    settings.motion = "discrete"
+    select(bars)
+    check(bpy.ops.sweptvol.compute(wait=True, timeout=300) == {"FINISHED"}, "compute the rig, discrete")
+    swept = coll.objects.get(operators.JOBS[-1]["imported"])
+    n, out, where = enclosure(scene, bars[1], swept, fine)
+    check(out > 0, "the discrete result encloses the rig's motion: the check above could not fail")
+    settings.motion = "screw"
+    for o in bars + [rig]:
+        bpy.data.objects.remove(o)
+
+
 def clearance(scene, settings, operators, exchange, coll, part, bar, posed_tris):
     """Obstacles from a collection: the clearance map comes back as objects with the per-vertex
     lower end readable and shown by a material, a closest-point marker, and the verdict as
@@ -710,6 +784,7 @@ def main(state):
     # 4c. Continuous motion: between the samples the imported result encloses the object
 
     continuous_motion(scene, settings, operators, exchange, coll)
+    articulated(scene, settings, operators, exchange, coll)
 
     # ---------------------------------------------------------------------------------------------
     # 4d. Clearance: obstacles, a contact, motion relative to another object

@@ -19,6 +19,9 @@ def close(a, b, tol=1e-12):
     return all(abs(a[i][j] - b[i][j]) <= tol for i in range(4) for j in range(4))
 
 
+IDENT = [[1.0 if i == j else 0.0 for j in range(4)] for i in range(4)]
+
+
 def translate(x, y, z):
     return [[1, 0, 0, x], [0, 1, 0, y], [0, 0, 1, z], [0, 0, 0, 1]]
 
@@ -152,6 +155,37 @@ def test_mesh_node_worlds_compose_the_hierarchy(tmp_path):
     assert len(points) == 8 and len(tris) == 8
     assert points[1] == pytest.approx((12, 0, 0))  # Child's (1,0,0) scaled and moved
     assert tris[4] == (4, 6, 5)
+
+
+def test_a_rig_document_nests_the_meshes_under_their_joints(tmp_path):
+    """The exported meshes under the rig's nodes: each node's world is the product of the
+    locals given, the meshes are kept by name, the exporter's own nodes and skins are gone, and
+    the bytes round-trip through read_glb."""
+    p = tmp_path / "a.glb"
+    tetra_glb(p, [{"name": "Upper", "mesh": 0, "translation": [5, 5, 5]},
+                  {"name": "Fore", "mesh": 0, "skin": 0}], [0, 1])
+    doc, binary = ex.read_glb(str(p))
+    doc["skins"] = [{"joints": [0]}]
+    rig = [("Rig", None, translate(0, 1, 0), None),
+           ("Rig:Upper", 0, IDENT, None),
+           ("Upper", 1, translate(0.5, 0, 0), "Upper"),
+           ("Rig:Fore", 1, translate(1, 0, 0), None),
+           ("Fore", 3, scale(2, 2, 2), "Fore")]
+    out = ex.rig_document(doc, rig)
+    q = tmp_path / "b.glb"
+    q.write_bytes(ex.write_glb(out, binary))
+    back, back_bin = ex.read_glb(str(q))
+    assert back_bin[: len(binary)] == binary and "skins" not in back
+    assert [n["name"] for n in back["nodes"]] == [r[0] for r in rig]
+    assert back["scenes"][back["scene"]]["nodes"] == [0]
+    assert "skin" not in back["nodes"][4]
+    worlds = dict(ex.mesh_node_worlds(back))
+    assert close(worlds["Upper"], translate(0.5, 1, 0))
+    assert close(worlds["Fore"], chain(translate(1, 1, 0), scale(2, 2, 2)))
+    with pytest.raises(ValueError, match="no mesh node named 'Hand'"):
+        ex.rig_document(doc, [("Hand", None, IDENT, "Hand")])
+    with pytest.raises(ValueError, match="does not come before"):
+        ex.rig_document(doc, [("A", 1, IDENT, None), ("B", None, IDENT, None)])
 
 
 def test_read_glb_refuses_other_files(tmp_path):
