@@ -232,6 +232,35 @@ impl Screw {
         d * (twist + (ds * q0).length())
             + (d * self.omega.length() * sigma + d * sym_norm(&ds) + sigma) * inner
     }
+
+    /// Bound on the acceleration (d²/dσ²) of the posed point M(s)·q(σ) over s in [a, b], where
+    /// q starts at `q0` and moves at speed at most `inner` and acceleration at most `inner_acc`;
+    /// None when the stretch changes between the rows (then only [`Self::speed`] holds). With
+    /// y = M·q: y'' = M''q + 2M'q' + Mq''. In G(a)'s frame M(σ) = exp(σΔξ)·S, so M''q =
+    /// Δ²·ω × (ω × Sq + v): at most θ·(the helix speed at Sq), θ = Δ|ω|, and that speed moves
+    /// by at most θ·σ_S·|q - q0| ≤ θ·σ_S·inner; M'q' = Δ·ω × Sq': at most θ·σ_S·inner; Mq'':
+    /// at most σ_S·inner_acc. Convex in q0 for fixed bounds of the inner motion.
+    pub(crate) fn acceleration(
+        &self,
+        (a, b): (f64, f64),
+        q0: DVec3,
+        inner: f64,
+        inner_acc: f64,
+    ) -> Option<f64> {
+        if self.s1 != self.from.s {
+            return None;
+        }
+        let d = b - a;
+        let s = self.from.s;
+        let sigma = sym_norm(&s);
+        let theta = d * self.omega.length();
+        let helix = d * (self.omega.cross(s * q0) + self.v).length();
+        Some(
+            theta * (helix + theta * sigma * inner)
+                + 2.0 * theta * sigma * inner
+                + sigma * inner_acc,
+        )
+    }
 }
 
 /// An upper bound of the spectral norm of a symmetric matrix: its largest absolute row sum
@@ -271,7 +300,7 @@ pub(crate) enum Factor {
 }
 
 impl Factor {
-    fn at(&self, sigma: f64) -> DMat4 {
+    pub(crate) fn at(&self, sigma: f64) -> DMat4 {
         match self {
             Factor::Fixed(m) => *m,
             Factor::Moving { screw, span } => screw.at(span.0 + sigma * (span.1 - span.0)),
