@@ -145,12 +145,15 @@ fn main() {
     println!("{}", serde_json::to_string_pretty(&out).unwrap());
 }
 
+/// A part, its poses (with their CSV lines) and whether it stands still.
+type Posed = (usize, Vec<(DMat4, Option<u64>)>, bool);
+
 fn measure(
     label: &str,
     generator: &Generator,
     traj: &Trajectory,
     n: u32,
-    truth: &[(usize, Vec<(DMat4, Option<u64>)>, bool)],
+    truth: &[Posed],
 ) -> serde_json::Value {
     let t0 = Instant::now();
     let input = posed::build(
