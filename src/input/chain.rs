@@ -194,64 +194,78 @@ pub fn resolve(
 }
 
 /// Pieces of an interval for the second bound (`interval`).
-const PIECES: usize = 16;
+/// Pieces of an interval for the second bound (`interval`): at least the first, at most the
+/// second; in between, enough to make the acceleration's share A/K a twentieth of the speed.
+const PIECES: (usize, usize) = (16, 512);
 
 /// The interval of part `part` moved by `factors` (root first), with its path bound: the
 /// smaller of two bounds on every point's speed, each the largest over the part's outline.
 /// The first adds the nodes' speeds up the chain (`Screw::speed`). The second cuts the
 /// interval into K pieces: on a piece of length 1/K the speed differs from the chord's mean
 /// speed K·|x(σₖ₊₁) - x(σₖ)| by at most A/K, A a bound on the acceleration built up the chain
-/// the same way (`Screw::acceleration`); it needs no node's stretch to change, and is near the
-/// true largest speed where the first adds up speeds that point different ways.
+/// the same way (`Screw::acceleration`); it is near the true largest speed where the first
+/// adds up speeds that point different ways.
 fn interval(
     generator: &Generator,
     part: usize,
     lines: (u64, u64),
     factors: Vec<Factor>,
 ) -> Interval {
-    let (mut first, mut second): (f64, Option<f64>) = (0.0, Some(0.0));
     let mut reach: f64 = 0.0;
-    let poses: Vec<DMat4> = (0..=PIECES)
-        .map(|k| {
-            let s = k as f64 / PIECES as f64;
-            factors.iter().fold(DMat4::IDENTITY, |m, f| m * f.at(s))
+    // Per vertex: its speed bound by the sum and its acceleration bound.
+    let bounds: Vec<(f64, f64)> = generator.parts[part]
+        .positions
+        .iter()
+        .map(|p| {
+            // From the part's own node up: q is the point in the current node's parent frame
+            // at the interval's start; speed and acc bound its speed and acceleration there.
+            let mut q = p.as_dvec3();
+            let (mut speed, mut acc) = (0.0, 0.0);
+            for f in factors.iter().rev() {
+                match f {
+                    Factor::Fixed(m) => {
+                        let norm = motion::norm_bound(&DMat3::from_mat4(*m));
+                        (speed, acc) = (speed * norm, acc * norm);
+                        q = m.transform_point3(q);
+                    }
+                    Factor::Moving { screw, span } => {
+                        acc = screw.acceleration(*span, q, speed, acc);
+                        speed = screw.speed(*span, q, speed);
+                        q = screw.at(span.0).transform_point3(q);
+                    }
+                }
+                reach = reach.max(q.abs().max_element());
+            }
+            (speed, acc)
         })
         .collect();
-    for p in &generator.parts[part].positions {
-        // From the part's own node up: q is the point in the current node's parent frame at
-        // the interval's start; speed and acc bound its speed and acceleration there.
-        let mut q = p.as_dvec3();
-        let (mut speed, mut acc) = (0.0, Some(0.0));
-        for f in factors.iter().rev() {
-            match f {
-                Factor::Fixed(m) => {
-                    let norm = motion::norm_bound(&DMat3::from_mat4(*m));
-                    (speed, acc) = (speed * norm, acc.map(|a| a * norm));
-                    q = m.transform_point3(q);
-                }
-                Factor::Moving { screw, span } => {
-                    acc = acc.and_then(|a| screw.acceleration(*span, q, speed, a));
-                    speed = screw.speed(*span, q, speed);
-                    q = screw.at(span.0).transform_point3(q);
-                }
-            }
-            reach = reach.max(q.abs().max_element());
-        }
-        first = first.max(speed);
-        second = second.zip(acc).map(|(best, a)| {
-            let p = p.as_dvec3();
-            let chords = poses
-                .windows(2)
-                .map(|w| (w[1].transform_point3(p) - w[0].transform_point3(p)).length())
-                .fold(0.0, f64::max);
-            best.max(chords * PIECES as f64 + a / PIECES as f64)
-        });
-    }
-    // The chords' f64 error is multiplied by K: K times the evaluation's own allowance.
-    let path = match second {
-        Some(s) => first.min(s + PIECES as f64 * motion::eval_error(factors.len(), reach, s)),
-        None => first,
-    };
+    let first = bounds.iter().map(|b| b.0).fold(0.0, f64::max);
+    let acc_max = bounds.iter().map(|b| b.1).fold(0.0, f64::max);
+    let second = (first > 0.0).then(|| {
+        let k = ((20.0 * acc_max / first).ceil() as usize).clamp(PIECES.0, PIECES.1);
+        let poses: Vec<DMat4> = (0..=k)
+            .map(|j| {
+                let s = j as f64 / k as f64;
+                factors.iter().fold(DMat4::IDENTITY, |m, f| m * f.at(s))
+            })
+            .collect();
+        let bound = generator.parts[part]
+            .positions
+            .iter()
+            .zip(&bounds)
+            .map(|(p, &(_, a))| {
+                let p = p.as_dvec3();
+                let chords = poses
+                    .windows(2)
+                    .map(|w| (w[1].transform_point3(p) - w[0].transform_point3(p)).length())
+                    .fold(0.0, f64::max);
+                chords * k as f64 + a / k as f64
+            })
+            .fold(0.0, f64::max);
+        // The chords' f64 error is multiplied by K: K times the evaluation's own allowance.
+        bound + k as f64 * motion::eval_error(factors.len(), reach, bound)
+    });
+    let path = second.map_or(first, |s| first.min(s));
     let turn = factors
         .iter()
         .map(|f| match f {

@@ -234,32 +234,28 @@ impl Screw {
     }
 
     /// Bound on the acceleration (d²/dσ²) of the posed point M(s)·q(σ) over s in [a, b], where
-    /// q starts at `q0` and moves at speed at most `inner` and acceleration at most `inner_acc`;
-    /// None when the stretch changes between the rows (then only [`Self::speed`] holds). With
-    /// y = M·q: y'' = M''q + 2M'q' + Mq''. In G(a)'s frame M(σ) = exp(σΔξ)·S, so M''q =
-    /// Δ²·ω × (ω × Sq + v): at most θ·(the helix speed at Sq), θ = Δ|ω|, and that speed moves
-    /// by at most θ·σ_S·|q - q0| ≤ θ·σ_S·inner; M'q' = Δ·ω × Sq': at most θ·σ_S·inner; Mq'':
-    /// at most σ_S·inner_acc. Convex in q0 for fixed bounds of the inner motion.
+    /// q starts at `q0` and moves at speed at most `inner` and acceleration at most `inner_acc`.
+    /// In G(a)'s frame y = E(σ)·u with E = exp(σΔξ) rigid and u = S(σ)q the stretched point
+    /// (S(σ) = S(a) + σ·Δ(S₁ - S₀)): y'' = Δξ applied twice to E·u, plus 2Δω × R_E·u', plus
+    /// R_E·u''. The first is at most θ·(the helix speed at u), θ = Δ|ω|, which moves by at
+    /// most θ·|u - u(0)|; |u'| ≤ |ΔS q| + σ_S|q'| =: U₁ (ΔS = Δ(S₁ - S₀), |ΔS q| ≤ |ΔS q0| +
+    /// ‖ΔS‖·inner); |u''| ≤ 2‖ΔS‖·inner + σ_S·inner_acc. So the acceleration is at most
+    /// θ·(helix(S(a)q0) + θ·U₁) + 2θ·U₁ + 2‖ΔS‖·inner + σ_S·inner_acc, convex in q0.
     pub(crate) fn acceleration(
         &self,
         (a, b): (f64, f64),
         q0: DVec3,
         inner: f64,
         inner_acc: f64,
-    ) -> Option<f64> {
-        if self.s1 != self.from.s {
-            return None;
-        }
+    ) -> f64 {
         let d = b - a;
-        let s = self.from.s;
-        let sigma = sym_norm(&s);
+        let (sa, sb) = (self.stretch(a), self.stretch(b));
+        let ds = (self.s1 - self.from.s) * d;
+        let (sigma, ds_norm) = (sym_norm(&sa).max(sym_norm(&sb)), sym_norm(&ds));
         let theta = d * self.omega.length();
-        let helix = d * (self.omega.cross(s * q0) + self.v).length();
-        Some(
-            theta * (helix + theta * sigma * inner)
-                + 2.0 * theta * sigma * inner
-                + sigma * inner_acc,
-        )
+        let helix = d * (self.omega.cross(sa * q0) + self.v).length();
+        let u1 = (ds * q0).length() + (ds_norm + sigma) * inner;
+        theta * (helix + theta * u1) + 2.0 * theta * u1 + 2.0 * ds_norm * inner + sigma * inner_acc
     }
 }
 
