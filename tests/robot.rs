@@ -41,6 +41,16 @@ fn run(urdf: &Path, csv: &Path, out: &Path, extra: &[&str]) -> std::process::Out
     sweptvol(&args)
 }
 
+/// An output mesh as points and triangles for winding numbers.
+fn output_mesh(path: &Path) -> (Vec<V3>, Vec<[u32; 3]>) {
+    let mesh = sweptvol::io::gltf_in::read_world_triangles(path).unwrap();
+    let pos = mesh.iter().flatten().map(|v| v.to_array()).collect();
+    let tris = (0..mesh.len() as u32)
+        .map(|t| [3 * t, 3 * t + 1, 3 * t + 2])
+        .collect();
+    (pos, tris)
+}
+
 /// The vertices of a binary STL, read here (not by the library).
 fn stl_vertices(path: &Path) -> Vec<DVec3> {
     let b = std::fs::read(path).unwrap();
@@ -120,14 +130,7 @@ fn the_ur5_is_enclosed_along_its_joint_linear_path() {
         String::from_utf8_lossy(&out.stderr)
     );
     let mesh_path = dir.path().join("ur5-joints.swept.glb");
-    let mesh = sweptvol::io::gltf_in::read_world_triangles(&mesh_path).unwrap();
-    let mut pos: Vec<V3> = Vec::new();
-    let mut tris = Vec::new();
-    for t in &mesh {
-        let base = pos.len() as u32;
-        pos.extend(t.iter().map(|v| v.to_array()));
-        tris.push([base, base + 1, base + 2]);
-    }
+    let (pos, tris) = output_mesh(&mesh_path);
     let rows: Vec<Vec<f64>> = std::fs::read_to_string(joints_csv())
         .unwrap()
         .lines()
@@ -236,15 +239,7 @@ fn primitives_are_meshed_around_their_true_shapes() {
             "{geometry}: {}",
             String::from_utf8_lossy(&out.stderr)
         );
-        let mesh =
-            sweptvol::io::gltf_in::read_world_triangles(&out_dir.join("r.swept.glb")).unwrap();
-        let mut pos: Vec<V3> = Vec::new();
-        let mut tris = Vec::new();
-        for t in &mesh {
-            let base = pos.len() as u32;
-            pos.extend(t.iter().map(|v| v.to_array()));
-            tris.push([base, base + 1, base + 2]);
-        }
+        let (pos, tris) = output_mesh(&out_dir.join("r.swept.glb"));
         for i in 0..40 {
             for j in 0..20 {
                 let (u, v) = (i as f64 * 0.157, j as f64 * 0.157 - 1.5);
@@ -275,15 +270,7 @@ fn a_long_turn_follows_the_joint() {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    let mesh =
-        sweptvol::io::gltf_in::read_world_triangles(&dir.path().join("r.swept.glb")).unwrap();
-    let mut pos: Vec<V3> = Vec::new();
-    let mut tris = Vec::new();
-    for t in &mesh {
-        let base = pos.len() as u32;
-        pos.extend(t.iter().map(|v| v.to_array()));
-        tris.push([base, base + 1, base + 2]);
-    }
+    let (pos, tris) = output_mesh(&dir.path().join("r.swept.glb"));
     let at = |deg: f64| {
         let a = deg.to_radians();
         winding_number(&pos, &tris, [0.8 * a.cos(), 0.8 * a.sin(), 0.0]) > 0.5

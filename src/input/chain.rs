@@ -22,6 +22,7 @@ use std::collections::HashMap;
 use std::path::Path;
 
 use glam::{DMat3, DMat4};
+use rayon::prelude::*;
 
 use crate::error::{num, InputError};
 use crate::input::model::{Generator, LinedPose, PartPoses, Trajectory, TreeNode};
@@ -179,14 +180,22 @@ pub fn resolve(
             poses.push((m, line_at(&rig, &chain, t)));
         }
         if motion == Motion::Screw {
+            let mut pieces = Vec::with_capacity(times.len() - 1);
             for (w, pair) in times.windows(2).enumerate() {
                 let factors = chain
                     .iter()
                     .map(|&n| rig.factor(n, (pair[0], pair[1])))
                     .collect::<Result<Vec<_>, _>>()?;
                 let lines = (poses[w].1.unwrap_or(0), poses[w + 1].1.unwrap_or(0));
-                intervals.push(interval(generator, k, lines, factors));
+                pieces.push((lines, factors));
             }
+            // The bounds on all threads; collect keeps the order (and the values do not
+            // depend on the threads).
+            let bounded: Vec<Interval> = pieces
+                .into_par_iter()
+                .map(|(lines, factors)| interval(generator, k, lines, factors))
+                .collect();
+            intervals.extend(bounded);
         }
         assigned.push((k, poses, false));
     }
