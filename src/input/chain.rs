@@ -86,12 +86,7 @@ impl Rig<'_> {
 
     fn screw(&self, node: usize, j: usize) -> Result<&Screw, InputError> {
         let track = &self.tracks[&node];
-        track.screws[j].as_ref().map_err(|why| {
-            let why = match why {
-                NoScrew::Singular => NoScrew::Singular,
-                NoScrew::MirrorFlips => NoScrew::MirrorFlips,
-                NoScrew::HalfTurn(t) => NoScrew::HalfTurn(*t),
-            };
+        track.screws[j].as_ref().map_err(|&why| {
             motion::refusal(
                 why,
                 &self.name(node),

@@ -148,6 +148,7 @@ pub(crate) struct Screw {
 }
 
 /// Why two poses have no screw between them.
+#[derive(Clone, Copy, Debug)]
 pub(crate) enum NoScrew {
     Singular,
     MirrorFlips,

@@ -16,7 +16,7 @@ use std::path::Path;
 
 use glam::{DMat3, DMat4, DVec3};
 
-use super::motion::{MotionCheck, Screw, MAX_POSES};
+use super::motion::{MotionCheck, Screw};
 use super::poses::{Between, PartPose};
 use crate::error::InputError;
 use crate::input::model::{Generator, Trajectory};
@@ -188,21 +188,28 @@ impl<'a> Rig<'a> {
         (0..self.generator.parts.len())
             .map(|part| {
                 let chain = self.chain(part);
-                let times = self.times(&chain);
-                if times.is_empty() {
-                    return Ok(vec![PartPose::new(
-                        self.generator.parts[part].world,
-                        None,
-                        None,
-                    )]);
-                }
-                times
-                    .iter()
-                    .map(|&(t, row, line)| {
-                        Ok(PartPose::new(self.world(&chain, t)?, Some(row), Some(line)))
-                    })
-                    .collect()
+                self.at_times(part, &chain, &self.times(&chain))
             })
+            .collect()
+    }
+
+    /// Part `part`'s poses at `times` (of its chain), or where it stands when there are none.
+    fn at_times(
+        &self,
+        part: usize,
+        chain: &[usize],
+        times: &[(f64, u32, u64)],
+    ) -> Result<Vec<PartPose>, InputError> {
+        if times.is_empty() {
+            return Ok(vec![PartPose::new(
+                self.generator.parts[part].world,
+                None,
+                None,
+            )]);
+        }
+        times
+            .iter()
+            .map(|&(t, row, line)| Ok(PartPose::new(self.world(chain, t)?, Some(row), Some(line))))
             .collect()
     }
 
@@ -219,25 +226,14 @@ impl<'a> Rig<'a> {
             let times = self.times(&chain);
             if times.len() < 2 {
                 check.poses += 1;
-                out.push(self.listed_one(part, &chain, &times)?);
+                out.push(self.at_times(part, &chain, &times)?);
                 continue;
             }
             let mut poses = Vec::new();
             for w in times.windows(2) {
                 let ((ta, row, line), (tb, to_row, to_line)) = (w[0], w[1]);
                 let path = self.path(part, &chain, (ta, tb))?;
-                let m = ((path / (2.0 * reach)).ceil() as u64).max(1);
-                check.intervals += 1;
-                check.max_path = check.max_path.max(path);
-                check.max_reach = check.max_reach.max(path / (2.0 * m as f64));
-                check.poses += m;
-                if check.poses > MAX_POSES {
-                    return Err(InputError::new(
-                        self.csv_path,
-                        format!("the continuous motion needs more than {MAX_POSES} poses at covering radius {reach:e}"),
-                        "give a larger --spacing, add rows, or verify with --motion discrete",
-                    ));
-                }
+                let m = check.interval(path, reach, self.csv_path)?;
                 for j in 0..m {
                     let s = (j as f64 + 0.5) / m as f64;
                     let mut pose = PartPose::new(
@@ -253,20 +249,6 @@ impl<'a> Rig<'a> {
             out.push(poses);
         }
         Ok((out, check))
-    }
-
-    fn listed_one(
-        &self,
-        part: usize,
-        chain: &[usize],
-        times: &[(f64, u32, u64)],
-    ) -> Result<Vec<PartPose>, InputError> {
-        Ok(match times.first() {
-            None => vec![PartPose::new(self.generator.parts[part].world, None, None)],
-            Some(&(t, row, line)) => {
-                vec![PartPose::new(self.world(chain, t)?, Some(row), Some(line))]
-            }
-        })
     }
 
     /// Bound on the speed, per unit of the interval's parameter, of every point of part

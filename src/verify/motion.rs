@@ -18,7 +18,7 @@ use crate::input::model::Generator;
 /// Turns this close to half a revolution are refused, as `run` does (179.9°).
 const MAX_TURN: f64 = std::f64::consts::PI - 1.75e-3;
 /// At most this many middle poses in all.
-pub(super) const MAX_POSES: u64 = 5_000_000;
+const MAX_POSES: u64 = 5_000_000;
 
 /// What the verifier did with the motion.
 #[derive(Clone, Debug, Default, Serialize)]
@@ -33,6 +33,31 @@ pub struct MotionCheck {
     /// interval, world units.
     pub max_reach: f64,
     pub max_path: f64,
+}
+
+impl MotionCheck {
+    /// Count an interval whose path bound is `path`: the m sub-intervals of reach at most
+    /// `reach` it is cut into. Refused: more than MAX_POSES middle poses in all.
+    pub(super) fn interval(
+        &mut self,
+        path: f64,
+        reach: f64,
+        csv_path: &std::path::Path,
+    ) -> Result<u64, InputError> {
+        let m = ((path / (2.0 * reach)).ceil() as u64).max(1);
+        self.intervals += 1;
+        self.max_path = self.max_path.max(path);
+        self.max_reach = self.max_reach.max(path / (2.0 * m as f64));
+        self.poses += m;
+        if self.poses > MAX_POSES {
+            return Err(InputError::new(
+                csv_path,
+                format!("the continuous motion needs more than {MAX_POSES} poses at covering radius {reach:e}"),
+                "give a larger --spacing, add rows, or verify with --motion discrete",
+            ));
+        }
+        Ok(m)
+    }
 }
 
 /// Rigid part G = [R | t] and symmetric stretch S of a pose M = G·S, by the polar
@@ -221,18 +246,7 @@ pub fn continuous(
                     .fold(0.0, f64::max)
                     * a.sigma_max.max(b.sigma_max);
             let path = path + 1024.0 * f64::EPSILON * far;
-            let m = ((path / (2.0 * reach)).ceil() as u64).max(1);
-            check.intervals += 1;
-            check.max_path = check.max_path.max(path);
-            check.max_reach = check.max_reach.max(path / (2.0 * m as f64));
-            check.poses += m;
-            if check.poses > MAX_POSES {
-                return Err(InputError::new(
-                    csv_path,
-                    format!("the continuous motion needs more than {MAX_POSES} poses at covering radius {reach:e}"),
-                    "give a larger --spacing, add rows, or verify with --motion discrete",
-                ));
-            }
+            let m = check.interval(path, reach, csv_path)?;
             for j in 0..m {
                 let s = (j as f64 + 0.5) / m as f64;
                 let mut pose = PartPose::new(screw.at(s), a.row, a.line);
