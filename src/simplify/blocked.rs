@@ -22,6 +22,7 @@
 use std::collections::{HashMap, HashSet};
 use std::hash::BuildHasherDefault;
 
+use glam::DVec3;
 use rayon::prelude::*;
 
 use super::band::{pack_cell, KeyHasher};
@@ -193,18 +194,24 @@ fn simplify_block(
             break;
         }
         let region = s.region(c.a, c.b);
+        // The border rule, before the costly checks: every moved triangle's vertex locked or
+        // strictly inside the block's box.
+        let in_box = |moved: &[([u32; 3], [DVec3; 3])]| {
+            let off_box = moved.iter().any(|(ids, q)| {
+                ids.iter()
+                    .zip(q)
+                    .any(|(&x, &p)| !locked[x as usize] && !block.strictly_holds(p))
+            });
+            if off_box {
+                Err(Reject::Border)
+            } else {
+                Ok(())
+            }
+        };
         let outcome = region
-            .check(&mut scratch, &opts, region.target())
+            .check_moving(&mut scratch, &opts, region.target(), in_box)
             .and_then(|plan| {
                 if !plan.in_plane {
-                    let off_box = plan.new.iter().any(|(ids, q)| {
-                        ids.iter()
-                            .zip(q)
-                            .any(|(&x, &p)| !locked[x as usize] && !block.strictly_holds(p))
-                    });
-                    if off_box {
-                        return Err(Reject::Border);
-                    }
                     s.crosses_nothing(&mut scratch.seen, &plan)?;
                 }
                 Ok(plan)

@@ -178,6 +178,19 @@ impl Region {
         opts: &SimplifyOptions,
         v: DVec3,
     ) -> Result<Plan, Reject> {
+        self.check_moving(scratch, opts, v, |_| Ok(()))
+    }
+
+    /// [`Self::check`] with a caller's rule on where the moved triangles (new places, ids as
+    /// after the collapse) may go, judged before the band and sweep checks, which cost the most:
+    /// a collapse that moves the surface is refused with the rule's reason first.
+    pub fn check_moving(
+        &self,
+        scratch: &mut Scratch,
+        opts: &SimplifyOptions,
+        v: DVec3,
+        may_move: impl Fn(&[([u32; 3], [DVec3; 3])]) -> Result<(), Reject>,
+    ) -> Result<Plan, Reject> {
         let (a, b) = (self.a, self.b);
         // Topology: a two-face edge between manifold vertices, and the link condition.
         let on_edge: Vec<&(u32, [u32; 3])> =
@@ -239,6 +252,7 @@ impl Region {
         let new: Vec<([u32; 3], [DVec3; 3])> = changed.iter().map(|c| (c.ids, c.new)).collect();
         let in_plane = self.keeps_surface(v);
         if !in_plane {
+            may_move(&new)?;
             // What the collapse takes away or moves, at its old places.
             let swept: Vec<[DVec3; 3]> = self
                 .tris
