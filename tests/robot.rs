@@ -4,7 +4,7 @@
 //! kinematics from the URDF's numbers and its own STL reading, and by `verify`); primitives are
 //! meshed around the true shapes; a step over 180° follows the joint, not the shortest turn;
 //! limits are warned about; malformed descriptions and joint files are refused by name with no
-//! output written.
+//! output written; a mesh file edited after a robot's shards were swept stops their merge.
 
 mod common;
 
@@ -378,4 +378,87 @@ fn malformed_robots_and_joint_files_are_refused_by_name() {
             "{what}: outputs written"
         );
     }
+}
+
+/// A robot swept in shards: the manifests' hash covers the mesh files the URDF names, so a mesh
+/// changed after the shards were swept stops the merge (naming the URDF and its meshes, nothing
+/// written); restored, the shards merge.
+#[test]
+fn a_mesh_changed_after_the_shards_stops_the_merge() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let tetra = |x: f32| {
+        let v = [
+            [0.0, 0.0, 0.0],
+            [x, 0.0, 0.0],
+            [0.0, 0.3, 0.0],
+            [0.0, 0.0, 0.3],
+        ];
+        let mut s = String::from("solid t\n");
+        for t in [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]] {
+            s += "facet normal 0 0 0\nouter loop\n";
+            for k in t {
+                let p: [f32; 3] = v[k];
+                s += &format!("vertex {} {} {}\n", p[0], p[1], p[2]);
+            }
+            s += "endloop\nendfacet\n";
+        }
+        s + "endsolid t\n"
+    };
+    files::write(d, "part.stl", tetra(0.3));
+    let (urdf, csv) = primitive_robot(
+        d,
+        r#"<mesh filename="part.stl"/>"#,
+        HINGE,
+        "time,hinge\n0,0\n1,0.5\n2,1.0\n",
+    );
+    let shards = d.join("shards");
+    let sweep = |shard: &str| {
+        let args: Vec<String> = [
+            "sweep",
+            "--robot",
+            urdf.to_str().unwrap(),
+            "--joints",
+            csv.to_str().unwrap(),
+            "--out",
+            shards.to_str().unwrap(),
+            "--backend",
+            "cpu",
+            "--resolution",
+            "32",
+            "--quiet",
+            "--shard",
+            shard,
+        ]
+        .map(String::from)
+        .to_vec();
+        let o = sweptvol(&args);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    };
+    sweep("1/2");
+    sweep("2/2");
+    let out = d.join("merged");
+    let merge = || {
+        sweptvol(&[
+            "mesh",
+            "--quiet",
+            "--from",
+            shards.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ])
+    };
+    files::write(d, "part.stl", tetra(0.35));
+    let o = merge();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("r.urdf") && err.contains("mesh file it names"),
+        "{err}"
+    );
+    assert!(!out.exists(), "the refused merge wrote {}", out.display());
+    files::write(d, "part.stl", tetra(0.3));
+    let o = merge();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(out.join("r.swept.glb").is_file());
 }

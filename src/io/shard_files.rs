@@ -91,7 +91,7 @@ impl JobSpec {
         };
         let (generator, trajectory) = (abs(generator)?, abs(trajectory)?);
         Ok(JobSpec {
-            generator_hash: hash_file(&generator)?,
+            generator_hash: hash_generator(&generator, &options.package_dir)?,
             trajectory_hash: hash_file(&trajectory)?,
             generator,
             trajectory,
@@ -405,6 +405,29 @@ pub fn decode_into(
 }
 
 /// FNV-1a 64 of a file's bytes, as 16 hex digits.
+/// [`hash_file`] of a generator; for a robot description, FNV-1a 64 of the URDF's bytes and
+/// then, per mesh file it names (in the order read, `package_dirs` resolving
+/// `package://` paths), a zero byte, the file's path, a zero byte and its bytes: a mesh changed
+/// between the shards or before the merge changes the hash as the URDF's own edits do.
+pub fn hash_generator(path: &Path, package_dirs: &[PathBuf]) -> anyhow::Result<String> {
+    if !crate::io::urdf::is_robot(path) {
+        return hash_file(path);
+    }
+    let robot = crate::io::urdf::read_robot(path, package_dirs)?;
+    let read = |p: &Path| {
+        fs::read(p)
+            .map_err(|e| InputError::new(p, format!("cannot read it: {e}"), "check the path"))
+    };
+    let mut bytes = read(path)?;
+    for file in &robot.files {
+        bytes.push(0);
+        bytes.extend_from_slice(file.as_os_str().as_encoded_bytes());
+        bytes.push(0);
+        bytes.extend(read(file)?);
+    }
+    Ok(fnv1a64_hex(&bytes))
+}
+
 pub fn hash_file(path: &Path) -> anyhow::Result<String> {
     let bytes = fs::read(path)
         .map_err(|e| InputError::new(path, format!("cannot read it: {e}"), "check the path"))?;

@@ -57,6 +57,9 @@ impl Joint {
 /// A robot read from its URDF: the generator and its joints.
 pub struct Robot {
     pub generator: Generator,
+    /// The mesh files the elements were read from, in the order read (a shard's manifest
+    /// hashes them with the URDF).
+    pub files: Vec<PathBuf>,
     joints: Vec<Joint>,
 }
 
@@ -211,6 +214,7 @@ pub fn read_robot(path: &Path, package_dirs: &[PathBuf]) -> Result<Robot, InputE
             local,
         });
     }
+    let mut files = Vec::new();
     for (i, name) in order.iter().enumerate() {
         let link = &robot.links[link_index[name]];
         let (kind, elements): (&str, Vec<(&urdf_rs::Pose, &urdf_rs::Geometry)>) =
@@ -233,7 +237,8 @@ pub fn read_robot(path: &Path, package_dirs: &[PathBuf]) -> Result<Robot, InputE
             };
         for (e, (origin, geometry)) in elements.into_iter().enumerate() {
             let at = format!("link {name:?}, {kind} {e}");
-            let (mesh, scale) = geometry_mesh(path, package_dirs, &at, geometry)?;
+            let (mesh, scale, file) = geometry_mesh(path, package_dirs, &at, geometry)?;
+            files.extend(file);
             if mesh.1.is_empty() {
                 return Err(urdf_error(
                     path,
@@ -267,7 +272,11 @@ pub fn read_robot(path: &Path, package_dirs: &[PathBuf]) -> Result<Robot, InputE
             "give the links <collision> geometry",
         ));
     }
-    Ok(Robot { generator, joints })
+    Ok(Robot {
+        generator,
+        files,
+        joints,
+    })
 }
 
 /// The world transform of node `i` (parents before children in `nodes`).
@@ -281,13 +290,14 @@ fn world_of(nodes: &[TreeNode], i: usize) -> DMat4 {
     m
 }
 
-/// An element's triangles and its mesh scale.
+/// An element's triangles, its mesh scale and the mesh file it was read from (None for a
+/// primitive).
 fn geometry_mesh(
     path: &Path,
     package_dirs: &[PathBuf],
     at: &str,
     geometry: &urdf_rs::Geometry,
-) -> Result<(mesh_files::Mesh, DVec3), InputError> {
+) -> Result<(mesh_files::Mesh, DVec3, Option<PathBuf>), InputError> {
     let positive = |what: &str, v: f64| {
         if v.is_finite() && v > 0.0 {
             Ok(v)
@@ -306,18 +316,20 @@ fn geometry_mesh(
                 positive("box size", size[1])? / 2.0,
                 positive("box size", size[2])? / 2.0,
             ];
-            (boxed(h), DVec3::ONE)
+            (boxed(h), DVec3::ONE, None)
         }
         urdf_rs::Geometry::Sphere { radius } => {
-            (sphere(positive("radius", *radius)?, 0.0), DVec3::ONE)
+            (sphere(positive("radius", *radius)?, 0.0), DVec3::ONE, None)
         }
         urdf_rs::Geometry::Cylinder { radius, length } => (
             cylinder(positive("radius", *radius)?, positive("length", *length)?),
             DVec3::ONE,
+            None,
         ),
         urdf_rs::Geometry::Capsule { radius, length } => (
             sphere(positive("radius", *radius)?, positive("length", *length)?),
             DVec3::ONE,
+            None,
         ),
         urdf_rs::Geometry::Mesh { filename, scale } => {
             let scale = scale
@@ -333,7 +345,7 @@ fn geometry_mesh(
             let file = resolve(path, package_dirs, filename).ok_or_else(|| {
                 urdf_error(path, format!("{at}: the mesh {filename:?} is not found"), "give $package_dir the folder that holds the package (package://NAME/... is read as DIR/NAME/...), or a path relative to the URDF")
             })?;
-            (read_mesh(&file)?, scale)
+            (read_mesh(&file)?, scale, Some(file))
         }
     })
 }

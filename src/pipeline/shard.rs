@@ -150,12 +150,14 @@ pub fn merge(
         ),
     ] {
         if was != is {
-            return Err(InputError::new(
-                path,
-                "changed since the shards were swept (its hash differs)",
-                "sweep the shards again, or restore the file",
-            )
-            .into());
+            let what = if crate::io::urdf::is_robot(path) {
+                "changed since the shards were swept, or a mesh file it names did (the hash covers them)"
+            } else {
+                "changed since the shards were swept (its hash differs)"
+            };
+            return Err(
+                InputError::new(path, what, "sweep the shards again, or restore the file").into(),
+            );
         }
     }
     let job = prepare(&opts)?;
