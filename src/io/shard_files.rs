@@ -404,7 +404,6 @@ pub fn decode_into(
     Ok(())
 }
 
-/// FNV-1a 64 of a file's bytes, as 16 hex digits.
 /// [`hash_file`] of a generator; for a robot description, FNV-1a 64 of the URDF's bytes and
 /// then, per mesh file it names (in the order read, `package_dirs` resolving
 /// `package://` paths), a zero byte, the file's path, a zero byte and its bytes: a mesh changed
@@ -428,6 +427,7 @@ pub fn hash_generator(path: &Path, package_dirs: &[PathBuf]) -> anyhow::Result<S
     Ok(fnv1a64_hex(&bytes))
 }
 
+/// FNV-1a 64 of a file's bytes, as 16 hex digits.
 pub fn hash_file(path: &Path) -> anyhow::Result<String> {
     let bytes = fs::read(path)
         .map_err(|e| InputError::new(path, format!("cannot read it: {e}"), "check the path"))?;
