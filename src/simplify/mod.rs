@@ -48,6 +48,9 @@ use state::{Plan, Reject, Scratch, State};
 /// Candidates checked together (in parallel); results do not depend on the thread count.
 const BATCH: usize = 64;
 
+/// How often a long pass says how far it is.
+const PROGRESS_EVERY: std::time::Duration = std::time::Duration::from_secs(30);
+
 /// Edge of the triangle hash's cells, grid units (triangles span a few voxels).
 const HASH_CELL: f64 = 2.0;
 
@@ -242,9 +245,20 @@ fn run_batches(
     // not depend on the thread count.
     let mut ready: Vec<((u32, u32), Result<Plan, Reject>)> = Vec::new();
     let (mut next, mut deferred) = gatherer.gather(&s, &mut heap);
+    // Progress on long passes (the seam pass at n = 4096 runs for minutes): a line every
+    // `PROGRESS_EVERY`.
+    let mut said = std::time::Instant::now();
     loop {
         if stop() {
             return None;
+        }
+        if said.elapsed() >= PROGRESS_EVERY {
+            said = std::time::Instant::now();
+            tracing::info!(
+                "simplifying: {} triangles left after {} collapses",
+                s.live_tris,
+                s.stats.collapses
+            );
         }
         let target = opts.target_triangles;
         let (reached, local) = rayon::join(
