@@ -414,24 +414,8 @@ fn a_mesh_changed_after_the_shards_stops_the_merge() {
     );
     let shards = d.join("shards");
     let sweep = |shard: &str| {
-        let args: Vec<String> = [
-            "sweep",
-            "--robot",
-            urdf.to_str().unwrap(),
-            "--joints",
-            csv.to_str().unwrap(),
-            "--out",
-            shards.to_str().unwrap(),
-            "--backend",
-            "cpu",
-            "--resolution",
-            "32",
-            "--quiet",
-            "--shard",
-            shard,
-        ]
-        .map(String::from)
-        .to_vec();
+        let mut args = files::run_args(&urdf, &csv, &shards, &["--shard", shard]);
+        args[0] = "sweep".into();
         let o = sweptvol(&args);
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     };
