@@ -210,6 +210,13 @@ fn corners_overlap(p: DVec3, ab: [DVec3; 2], cd: [DVec3; 2], n: DVec3) -> bool {
         || within(cd, mid(ab))
 }
 
+/// Where the hash's cell faces lie: at CELL_OFFSET + k·cell on each axis (grid units), off the
+/// integers and halves most vertices sit on (voxel corners, midpoints of edges: dyadic numbers,
+/// at least 0.05 from any face). A face through a box's side would add a layer of cells to each
+/// query and each filing, since boxes are widened by TOUCH: with faces on the lattice a query
+/// met 38 cells on average at n = 256, and the check took 7% longer overall.
+const CELL_OFFSET: f64 = 0.3;
+
 /// Cell size at which an insert prunes the cell (a cell of the start mesh holds about 8-16).
 const PRUNE_AT: usize = 32;
 
@@ -235,7 +242,7 @@ impl TriangleHash {
         let (lo, hi) = bounds(t);
         let (lo, hi) = (lo - DVec3::splat(TOUCH), hi + DVec3::splat(TOUCH));
         let f = |v: DVec3| {
-            let c = (v / self.cell).floor();
+            let c = ((v - CELL_OFFSET) / self.cell).floor();
             [c.x as i64, c.y as i64, c.z as i64]
         };
         (f(lo), f(hi))
@@ -339,7 +346,7 @@ struct Reach {
 impl Reach {
     /// Cell `c`'s box (lo, hi).
     fn bounds(c: [i64; 3], cell: f64) -> (DVec3, DVec3) {
-        let lo = DVec3::new(c[0] as f64, c[1] as f64, c[2] as f64) * cell;
+        let lo = DVec3::new(c[0] as f64, c[1] as f64, c[2] as f64) * cell + CELL_OFFSET;
         (lo, lo + DVec3::splat(cell))
     }
 
@@ -653,6 +660,28 @@ mod tests {
                             "after {step} moves, triangle {u} is missing from cell {c:?}"
                         );
                     }
+                }
+            }
+        }
+    }
+
+    /// Boxes with corners on the lattice of halves (where most vertices sit) meet no more cells
+    /// once widened by TOUCH than they overlap: no cell face lies on them. With the faces on
+    /// the integers (no offset) every such box would gain a layer of cells.
+    #[test]
+    fn lattice_boxes_meet_only_the_cells_they_overlap() {
+        for cell in [2.0, 3.0, 4.0] {
+            let hash = TriangleHash::new(cell);
+            for a in -40..40 {
+                for len in 0..8 {
+                    let (lo, hi) = (a as f64 / 2.0, (a + len) as f64 / 2.0);
+                    let (l, h) = hash.cell_range(&[DVec3::splat(lo), DVec3::splat(hi)]);
+                    let exact = |x: f64| ((x - CELL_OFFSET) / cell).floor() as i64;
+                    assert_eq!(
+                        (l[0], h[0]),
+                        (exact(lo), exact(hi)),
+                        "cell {cell}: [{lo}, {hi}]"
+                    );
                 }
             }
         }

@@ -51,8 +51,10 @@ const BATCH: usize = 64;
 /// How often a long pass says how far it is.
 const PROGRESS_EVERY: std::time::Duration = std::time::Duration::from_secs(30);
 
-/// Edge of the triangle hash's cells, grid units (triangles span a few voxels).
-const HASH_CELL: f64 = 2.0;
+/// Edge of the triangle hash's cells, grid units (triangles span a few voxels). With the cells'
+/// faces off the lattice (`intersect::CELL_OFFSET`), 3 measured 2-3% faster than 2 at n = 256
+/// and 512 and 4 no better (docs/perf-log.md, "The hash's cells off the lattice").
+const HASH_CELL: f64 = 3.0;
 
 /// The rule for lists pruned when full (the queue's FIFO and buckets, the triangle hash's
 /// cells): after pruning, grow by the whole capacity when less than a quarter was freed, so
