@@ -414,9 +414,7 @@ fn a_mesh_changed_after_the_shards_stops_the_merge() {
     );
     let shards = d.join("shards");
     let sweep = |shard: &str| {
-        let mut args = files::run_args(&urdf, &csv, &shards, &["--shard", shard]);
-        args[0] = "sweep".into();
-        let o = sweptvol(&args);
+        let o = sweptvol(&files::sweep_args(&urdf, &csv, &shards, shard, &[]));
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     };
     sweep("1/2");

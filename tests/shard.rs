@@ -8,15 +8,7 @@ use std::path::{Path, PathBuf};
 use fastrand::Rng;
 
 mod common;
-use common::files::{glb_parts, run_args, sweptvol, write, Part};
-
-/// `sweptvol sweep --shard i/n` with `run`'s arguments.
-fn sweep_args(g: &Path, t: &Path, out: &Path, shard: &str, extra: &[&str]) -> Vec<String> {
-    let mut v = run_args(g, t, out, extra);
-    v[0] = "sweep".into();
-    v.extend(["--shard".into(), shard.into()]);
-    v
-}
+use common::files::{glb_parts, run_args, sweep_args, sweptvol, write, Part};
 
 fn mesh_args(from: &[&Path], out: &Path) -> Vec<String> {
     let mut v = vec!["mesh".to_string(), "--quiet".into(), "--from".into()];

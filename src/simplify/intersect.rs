@@ -217,7 +217,8 @@ fn corners_overlap(p: DVec3, ab: [DVec3; 2], cd: [DVec3; 2], n: DVec3) -> bool {
 /// met 38 cells on average at n = 256, and the check took 7% longer overall.
 const CELL_OFFSET: f64 = 0.3;
 
-/// Cell size at which an insert prunes the cell (a cell of the start mesh holds about 8-16).
+/// Cell size at which an insert prunes the cell (a queried cell of 3 voxels held 34 ids on average
+/// at n = 256, live and stale; pruning at 16 measured no different).
 const PRUNE_AT: usize = 32;
 
 /// Triangle ids by the cells their bounding boxes meet (cells their plane misses by more than

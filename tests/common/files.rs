@@ -48,6 +48,14 @@ pub fn run_args(g: &Path, t: &Path, out: &Path, extra: &[&str]) -> Vec<String> {
     v
 }
 
+/// `sweptvol sweep --shard i/n` with [`run_args`]'s arguments.
+pub fn sweep_args(g: &Path, t: &Path, out: &Path, shard: &str, extra: &[&str]) -> Vec<String> {
+    let mut v = run_args(g, t, out, extra);
+    v[0] = "sweep".into();
+    v.extend(["--shard".into(), shard.into()]);
+    v
+}
+
 /// `sweptvol verify` of mesh `m` against `g` along `t`, then `extra`.
 pub fn verify_args(g: &Path, t: &Path, m: &Path, extra: &[&str]) -> Vec<String> {
     let mut v: Vec<String> = [
