@@ -170,9 +170,12 @@ fn measure(
     let images = cpu::sweep(&input, &Silent).unwrap();
     let t2 = Instant::now();
     let opts = SimplifyOptions::for_params(&input.params, input.grid.h, 0).unwrap();
-    let mesh = surface::build(&images, None, &Params::new(opts), &|| false)
-        .unwrap()
-        .mesh;
+    let pieces = sweptvol::simplify::pieces::Pieces::of(&input);
+    let mesh = surface::build(&images, None, pieces.as_ref(), &Params::new(opts), &|| {
+        false
+    })
+    .unwrap()
+    .mesh;
     let t3 = Instant::now();
     let h = input.grid.h;
     let origin = DVec3::from_array(input.grid.origin);

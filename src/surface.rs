@@ -13,6 +13,7 @@ use crate::mesh::flood;
 use crate::mesh::manifold::Joined;
 use crate::mesh::Mesh;
 use crate::simplify::blocked::{simplify_boundary, BLOCK_VOXELS};
+use crate::simplify::pieces::Pieces;
 use crate::simplify::{SimplifyOptions, SimplifyStats};
 use crate::voxels::VoxelBits;
 
@@ -60,10 +61,13 @@ pub struct Surface {
 }
 
 /// Build the swept volume's mesh from its six depth images and, where the job floods, the
-/// offset's reach. None when `stop` said yes (asked between blocks and batches).
+/// offset's reach; `pieces`, the swept volume's connected pieces ([`Pieces::of`] the job's
+/// input), make the sweep check exact and cheap (without them the region tests decide). None
+/// when `stop` said yes (asked between blocks and batches).
 pub fn build(
     images: &DepthImages,
     reach: Option<VoxelBits>,
+    pieces: Option<&Pieces>,
     params: &Params,
     stop: &(dyn Fn() -> bool + Sync),
 ) -> Option<Surface> {
@@ -90,7 +94,14 @@ pub fn build(
     let (joined_voxels, joined_reach) = (joined.added().len() as u64, joined.reach());
     let start_mesh = params.keep_start_mesh.then(|| extract::extract(&joined));
     let t1 = Instant::now();
-    let simplified = simplify_boundary(&joined, &classifier, params.simplify, params.block, stop)?;
+    let simplified = simplify_boundary(
+        &joined,
+        &classifier,
+        pieces,
+        params.simplify,
+        params.block,
+        stop,
+    )?;
     Some(Surface {
         mesh: simplified.mesh,
         stats: simplified.stats,

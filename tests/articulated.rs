@@ -17,6 +17,7 @@ use sweptvol::input::model::{Generator, Part, Pose, Rows, Trajectory, TreeNode};
 use sweptvol::input::motion::Motion;
 use sweptvol::input::posed::{self, SweepInput};
 use sweptvol::mesh::Mesh;
+use sweptvol::simplify::pieces::Pieces;
 use sweptvol::simplify::SimplifyOptions;
 use sweptvol::surface::{self, Params};
 use sweptvol::sweep::{cpu, Silent};
@@ -145,9 +146,11 @@ fn sweep(input: &SweepInput) -> Mesh {
         block: 8,
         ..Params::new(opts)
     };
-    surface::build(&images, None, &params, &|| false)
-        .expect("not stopped")
-        .mesh
+    surface::build(&images, None, Pieces::of(input).as_ref(), &params, &|| {
+        false
+    })
+    .expect("not stopped")
+    .mesh
 }
 
 fn grid(input: &SweepInput, p: DVec3) -> V3 {

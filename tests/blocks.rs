@@ -11,6 +11,7 @@ use common::{build, dist_to_set, generator, posed_grid_triangles, tetrahedron, w
 use common::{Draw, Rng, V3};
 use glam::{DMat4, DVec3};
 use sweptvol::input::model::Generator;
+use sweptvol::simplify::pieces::Pieces;
 use sweptvol::simplify::SimplifyOptions;
 use sweptvol::surface::{self, Params, Surface};
 use sweptvol::sweep::reach::reach;
@@ -38,7 +39,14 @@ fn check(g: &Generator, poses: &[DMat4], n: u32, block: usize, rng: &mut Rng, wh
         block,
         ..Params::new(opts)
     };
-    let s: Surface = surface::build(&images, Some(r), &params, &|| false).unwrap();
+    let s: Surface = surface::build(
+        &images,
+        Some(r),
+        Pieces::of(&input).as_ref(),
+        &params,
+        &|| false,
+    )
+    .unwrap();
     let m = &s.mesh;
     assert!(s.carved);
 

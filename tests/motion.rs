@@ -15,6 +15,7 @@ use sweptvol::mesh::classify::Classifier;
 use sweptvol::mesh::extract::extract;
 use sweptvol::mesh::manifold::Joined;
 use sweptvol::mesh::Mesh;
+use sweptvol::simplify::pieces::Pieces;
 use sweptvol::simplify::SimplifyOptions;
 use sweptvol::surface::{self, Params};
 use sweptvol::sweep::{cpu, Silent};
@@ -66,7 +67,7 @@ fn simplified(input: &SweepInput, images: &sweptvol::depth::DepthImages) -> Mesh
         block: 8,
         ..Params::new(opts)
     };
-    surface::build(images, None, &params, &|| false)
+    surface::build(images, None, Pieces::of(input).as_ref(), &params, &|| false)
         .expect("not stopped")
         .mesh
 }

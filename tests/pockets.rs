@@ -17,6 +17,7 @@ use sweptvol::input::posed::SweepInput;
 use sweptvol::mesh::classify::Classifier;
 use sweptvol::mesh::flood::flood;
 use sweptvol::mesh::Mesh;
+use sweptvol::simplify::pieces::Pieces;
 use sweptvol::simplify::SimplifyOptions;
 use sweptvol::surface::{self, Params};
 use sweptvol::sweep::reach::reach;
@@ -100,7 +101,8 @@ fn mesh_and_bound(
         block: 16,
         ..Params::new(opts)
     };
-    let s = surface::build(&images, r, &params, &|| false).expect("not stopped");
+    let s = surface::build(&images, r, Pieces::of(input).as_ref(), &params, &|| false)
+        .expect("not stopped");
     assert!(s.mesh.manifold_defects().is_manifold());
     let mut out = s.mesh;
     let h = input.grid.h;

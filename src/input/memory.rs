@@ -15,6 +15,9 @@
 //!   2.83P measured on the bundled bunny at n = 1024 and 1500);
 //! - with --keep-start-mesh, the whole voxel boundary at once and its GLB bytes: 54 B per start
 //!   triangle;
+//! - the swept volume's pieces for the sweep check (`simplify::pieces`): 48 B each and their
+//!   cell index, at most `MAX_PIECES` (2^20: about 80 MB; a few kB on the bundled examples,
+//!   one piece per component per row), so not counted;
 //! - BASE_BYTES for the program, its threads and the inputs. Poses do not count: the sweep's
 //!   input holds the rows and the motion's intervals, and the sub-poses between them are made a
 //!   batch at a time (`input::poses`), however many the motion needs.

@@ -128,6 +128,12 @@ impl PoseSource {
         }
     }
 
+    /// Every row's pose of part `part`, grid units, whatever the window (a static part: its one
+    /// pose).
+    pub fn rows(&self, part: usize) -> &[DMat4] {
+        &self.parts[part].rows
+    }
+
     /// Pose `index` of part `part` in grid units, f64: a row's matrix as given, or the grid map
     /// times the screw at s = step/k.
     pub fn grid_pose(&self, part: usize, index: u64) -> DMat4 {

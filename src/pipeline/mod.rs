@@ -406,8 +406,17 @@ pub fn finish(job: &Prepared, swept: Swept, observer: &dyn Observer) -> anyhow::
         keep_start_mesh: opts.job.keep_start_mesh,
         ..crate::surface::Params::new(band)
     };
-    let surface = crate::surface::build(&images, reach, &params, &|| observer.cancelled())
-        .ok_or(Cancelled)?;
+    let pieces = crate::simplify::pieces::Pieces::of(input);
+    if pieces.is_none() {
+        tracing::info!(
+            "more than {} pieces of the swept volume (parts' components times rows): the sweep check takes the region tests",
+            crate::simplify::pieces::MAX_PIECES
+        );
+    }
+    let surface = crate::surface::build(&images, reach, pieces.as_ref(), &params, &|| {
+        observer.cancelled()
+    })
+    .ok_or(Cancelled)?;
     let classification = ClassificationReport {
         method: if job.classify.flood {
             Method::Flood

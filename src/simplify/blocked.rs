@@ -26,6 +26,7 @@ use glam::DVec3;
 use rayon::prelude::*;
 
 use super::band::{pack_cell, KeyHasher};
+use super::pieces::Pieces;
 use super::quadric::Quadric;
 use super::queue::Queue;
 use super::state::{park, Reject, Scratch, State};
@@ -63,11 +64,12 @@ struct Done {
 pub fn simplify_boundary(
     set: &(dyn VoxelSet + Sync),
     cls: &Classifier,
+    pieces: Option<&Pieces>,
     opts: SimplifyOptions,
     block: usize,
     stop: &(dyn Fn() -> bool + Sync),
 ) -> Option<Simplified> {
-    simplify_boundary_with(set, cls, opts, block, Locks::Honour, stop)
+    simplify_boundary_with(set, cls, pieces, opts, block, Locks::Honour, stop)
 }
 
 /// Whether a block's pass keeps its locked vertices (the tests show what breaks otherwise).
@@ -81,6 +83,7 @@ enum Locks {
 fn simplify_boundary_with(
     set: &(dyn VoxelSet + Sync),
     cls: &Classifier,
+    pieces: Option<&Pieces>,
     opts: SimplifyOptions,
     block: usize,
     locks: Locks,
@@ -116,7 +119,7 @@ fn simplify_boundary_with(
             if locks != Locks::Honour {
                 patch.locked.fill(false);
             }
-            let out = simplify_block(patch, b, cls, opts, target, stop);
+            let out = simplify_block(patch, b, cls, pieces, opts, target, stop);
             let k = finished.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
             if k % tenth == 0 && k < list.len() {
                 tracing::info!("simplified {k} of {} blocks", list.len());
@@ -147,7 +150,7 @@ fn simplify_boundary_with(
             park(&mut parked, a, b);
         }
     }
-    let s = run_batches(s, Queue::new(queued), parked, cls, opts, stop)?;
+    let s = run_batches(s, Queue::new(queued), parked, cls, pieces, opts, stop)?;
     stats.add(&s.stats);
     Some(Simplified {
         mesh: s.compact(),
@@ -161,6 +164,7 @@ fn simplify_block(
     patch: Patch,
     block: &Block,
     cls: &Classifier,
+    pieces: Option<&Pieces>,
     opts: SimplifyOptions,
     target: usize,
     stop: &(dyn Fn() -> bool + Sync),
@@ -180,7 +184,7 @@ fn simplify_block(
     let mut s = State::new(mesh);
     let free = |c: &super::queue::Candidate| !locked[c.a as usize] && !locked[c.b as usize];
     let mut heap = Queue::new(all_edges(&s).into_iter().filter(free).collect());
-    let mut scratch = Scratch::new(cls, s.tris.len());
+    let mut scratch = Scratch::new(cls, pieces, s.tris.len());
     let mut parked = HashMap::new();
     // Edges whose last outcome was the border rule.
     let mut border: HashSet<(u32, u32), BuildHasherDefault<KeyHasher>> = HashSet::default();
@@ -341,7 +345,7 @@ mod tests {
             let joined = Joined::new(&cls);
             let start = crate::mesh::extract::extract(&joined).triangles.len() as u64;
             for size in [2, 5, 7, 64] {
-                let out = simplify_boundary(&joined, &cls, opts(), size, &|| false).unwrap();
+                let out = simplify_boundary(&joined, &cls, None, opts(), size, &|| false).unwrap();
                 assert_eq!(out.triangles_start, start);
                 let defects = out.mesh.manifold_defects();
                 assert!(
@@ -351,12 +355,70 @@ mod tests {
                 assert!(out.mesh.triangles.len() * 3 < start as usize, "seed {seed}");
             }
             let broken =
-                simplify_boundary_with(&joined, &cls, opts(), 5, Locks::Ignore, &|| false).unwrap();
+                simplify_boundary_with(&joined, &cls, None, opts(), 5, Locks::Ignore, &|| false)
+                    .unwrap();
             assert!(
                 !broken.mesh.manifold_defects().is_manifold(),
                 "seed {seed}: moving seam vertices went unnoticed"
             );
         }
+    }
+
+    /// Small separate blobs (2 to 4 voxels wide), each with the points farther than the tolerance
+    /// radius from every outside centre as a piece of "the swept volume" (no live triangle can
+    /// reach them): the output winds once around every such point.
+    #[test]
+    fn the_output_encloses_every_piece() {
+        let mut rng = fastrand::Rng::with_seed(5);
+        let mut deep = 0;
+        for seed in 0..12 {
+            // Blobs along the diagonal, so that no two share a pixel of any image.
+            let blobs: Vec<([f32; 3], [f32; 3])> = (0..4)
+                .map(|i| {
+                    let at = 2.0 + 6.0 * i as f32;
+                    let lo = [0, 1, 2].map(|_| at + rng.u32(0..2) as f32);
+                    let hi = lo.map(|x| x + rng.u32(2..5) as f32);
+                    (lo, hi)
+                })
+                .collect();
+            let cls = crate::mesh::classify::test_support::from_ranges([28, 28, 28], |a, u, v| {
+                let (cu, rv) = (crate::depth::COLUMN_AXIS[a], crate::depth::ROW_AXIS[a]);
+                blobs.iter().find_map(|(lo, hi)| {
+                    (u > lo[cu] && u < hi[cu] && v > lo[rv] && v < hi[rv])
+                        .then_some((lo[a] + 0.1, hi[a] - 0.1))
+                })
+            });
+            let joined = Joined::new(&cls);
+            let mut points = Vec::new();
+            let mut prox = crate::simplify::band::Proximity::new(&cls);
+            for x in 0..56 {
+                for y in 0..56 {
+                    for z in 0..56 {
+                        let p = DVec3::new(x as f64, y as f64, z as f64) * 0.5 + 0.25;
+                        let near = prox.nearest(p);
+                        let (d_out, _) = near.centre_distances();
+                        if near.inside && d_out > opts().tolerance.outside + 0.01 {
+                            points.push([p, p]);
+                        }
+                    }
+                }
+            }
+            deep += points.len();
+            let pieces = Pieces::from_points(points.clone());
+            let out =
+                simplify_boundary(&joined, &cls, Some(&pieces), opts(), 8, &|| false).unwrap();
+            let tris: Vec<[DVec3; 3]> = out
+                .mesh
+                .triangles
+                .iter()
+                .map(|t| t.map(|v| out.mesh.positions[v as usize]))
+                .collect();
+            for [p, _] in &points {
+                let w = super::super::pieces::winding(&tris, *p);
+                assert!((w - 1.0).abs() < 1e-6, "seed {seed}: winding {w} at {p}");
+            }
+        }
+        assert!(deep > 100, "only {deep} deep points");
     }
 
     #[test]
@@ -375,7 +437,7 @@ mod tests {
                 .build()
                 .unwrap()
                 .install(|| {
-                    simplify_boundary(&joined, &cls, opts(), 6, &|| false)
+                    simplify_boundary(&joined, &cls, None, opts(), 6, &|| false)
                         .unwrap()
                         .mesh
                 })

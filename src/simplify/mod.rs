@@ -5,9 +5,11 @@
 //!   `tolerance.outside` of an outside voxel's centre and within `tolerance.inside` of an inside
 //!   one's (adaptive pieces with exact distances, `band::Proximity::triangle_within`), so it
 //!   stays at least δ - outside from the swept volume and within inside + δ + μ + 2ρ of it;
-//! - sweep: every point of the tetrahedra joining an old triangle around the edge to the new
-//!   vertex is within `sweep` < δ of an outside voxel's centre, so the surface never passes over
-//!   a point of the swept volume and every such point stays enclosed;
+//! - sweep: no point of the swept volume changes its winding number: exactly, by the winding
+//!   number of the old and new triangles at one point of each of the swept volume's connected
+//!   pieces (`pieces`, where the job's are known), else sufficiently, by every point of the region
+//!   between the old and the new surface (`between`) or of the tetrahedra joining the old
+//!   triangles to the new vertex being within `sweep` < δ of an outside voxel's centre;
 //! - no self-intersection: new triangles are tested against the triangles near them (a spatial
 //!   hash) and each other, conservatively (`intersect::conflict`);
 //! - topology: only edges with two faces whose endpoints are manifold and satisfy the link
@@ -36,12 +38,14 @@ mod batch;
 mod between;
 pub mod blocked;
 pub(crate) mod intersect;
+pub mod pieces;
 mod quadric;
 mod queue;
 mod region;
 mod state;
 
 use batch::Gatherer;
+use pieces::Pieces;
 use queue::Queue;
 use state::{Plan, Reject, Scratch, State};
 
@@ -190,7 +194,7 @@ fn simplify_in_pool(
 ) -> Option<(Mesh, SimplifyStats)> {
     let s = State::new(mesh);
     let heap = Queue::new(all_edges(&s));
-    let s = run_batches(s, heap, HashMap::new(), cls, opts, stop)?;
+    let s = run_batches(s, heap, HashMap::new(), cls, None, opts, stop)?;
     Some((s.compact(), s.stats))
 }
 
@@ -227,6 +231,7 @@ fn run_batches(
     mut heap: Queue,
     mut parked: HashMap<u32, Vec<u32>>,
     cls: &Classifier,
+    pieces: Option<&Pieces>,
     opts: SimplifyOptions,
     stop: &(dyn Fn() -> bool + Sync),
 ) -> Option<State> {
@@ -234,7 +239,7 @@ fn run_batches(
     let t_count = s.tris.len();
     // One scratch per worker thread, kept across batches.
     let scratches: Vec<Mutex<Scratch>> = (0..rayon::current_num_threads())
-        .map(|_| Mutex::new(Scratch::new(cls, t_count)))
+        .map(|_| Mutex::new(Scratch::new(cls, pieces, t_count)))
         .collect();
     let scratch = || {
         let worker = rayon::current_thread_index().unwrap_or(0) % scratches.len();
@@ -311,6 +316,64 @@ mod tests {
     use crate::mesh::classify::test_support::boxed;
     use crate::mesh::extract::extract;
     use crate::simplify::band::dist_to_centre;
+
+    /// The sweep check by pieces, wired in: a collapse whose old and new triangles wind around a
+    /// piece's point is rejected (Sweep), the same collapse with the piece far away passes.
+    /// Points are found where the region between the surfaces has winding number ±1.
+    #[test]
+    fn a_collapse_winding_around_a_piece_is_rejected() {
+        let mut found = 0;
+        for seed in 0..3 {
+            let cls = crate::mesh::classify::test_support::random([14, 14, 14], seed);
+            let s = State::new(extract(&cls));
+            let mut plain = Scratch::new(&cls, None, s.tris.len());
+            for t in (0..s.tris.len()).step_by(7) {
+                let tri = s.tris[t];
+                let (a, b) = (tri[0], tri[1]);
+                let v = (s.pos[a as usize] + s.pos[b as usize]) / 2.0;
+                let region = s.region(a, b);
+                let Ok(plan) = region.check(&mut plain, &defaults(), v) else {
+                    continue;
+                };
+                if plan.in_plane {
+                    continue;
+                }
+                let place = |u: u32| s.tris[u as usize].map(|x| s.pos[x as usize]);
+                let moved: Vec<u32> = plan.changed.iter().map(|c| c.0).collect();
+                let mut surface: Vec<[DVec3; 3]> = plan
+                    .around
+                    .iter()
+                    .filter(|u| plan.shared.contains(u) || moved.contains(u))
+                    .map(|&u| place(u))
+                    .collect();
+                surface.extend(plan.new.iter().map(|(_, q)| [q[0], q[2], q[1]]));
+                // Between the moving endpoints' old places and v.
+                let Some(p) = [0.25, 0.5, 0.75]
+                    .into_iter()
+                    .flat_map(|f| [s.pos[a as usize], s.pos[b as usize]].map(|e| e + (v - e) * f))
+                    .find(|&p| (pieces::winding(&surface, p).abs() - 1.0).abs() < 1e-9)
+                else {
+                    continue;
+                };
+                found += 1;
+                let near = pieces::Pieces::from_points(vec![[p, p]]);
+                let far = pieces::Pieces::from_points(vec![[p + 50.0, p + 50.0]]);
+                let with = |pieces: &pieces::Pieces| {
+                    let mut scratch = Scratch::new(&cls, Some(pieces), s.tris.len());
+                    region.check(&mut scratch, &defaults(), v).map(|_| ())
+                };
+                assert!(
+                    matches!(with(&near), Err(Reject::Sweep)),
+                    "seed {seed}, edge {a}-{b}"
+                );
+                assert!(with(&far).is_ok(), "seed {seed}, edge {a}-{b}");
+            }
+        }
+        assert!(
+            found > 20,
+            "only {found} collapses with a point between the surfaces"
+        );
+    }
 
     /// Brute force: whether `p` lies in the tolerance volume of `opts`.
     fn in_volume(cls: &Classifier, p: DVec3, opts: SimplifyOptions) -> bool {
@@ -504,7 +567,7 @@ mod tests {
             (0..3).map(|seed| crate::mesh::classify::test_support::random([14, 14, 14], seed));
         for (seed, cls) in std::iter::once(block).chain(rough).enumerate() {
             let mut s = State::new(extract(&cls));
-            let mut scratch = Scratch::new(&cls, s.tris.len());
+            let mut scratch = Scratch::new(&cls, None, s.tris.len());
             for round in 0..4 {
                 for t in 0..s.tris.len() {
                     if !s.tri_alive[t] {

@@ -7,6 +7,7 @@ use glam::DVec3;
 
 use super::band::Proximity;
 use super::between::Between;
+use super::pieces::Pieces;
 use super::quadric::{cheapest, Quadric};
 use super::SimplifyOptions;
 use crate::mesh::classify::Classifier;
@@ -17,14 +18,18 @@ pub(super) struct Scratch<'c> {
     pub(super) prox: Proximity<'c>,
     pub(super) seen: IdSet,
     pub(super) between: Between,
+    /// The swept volume's pieces, when known: the sweep check then asks whether a collapse
+    /// winds around one of them (`pieces`), else the region tests decide.
+    pub(super) pieces: Option<&'c Pieces>,
 }
 
 impl<'c> Scratch<'c> {
-    pub(super) fn new(cls: &'c Classifier, triangles: usize) -> Self {
+    pub(super) fn new(cls: &'c Classifier, pieces: Option<&'c Pieces>, triangles: usize) -> Self {
         Scratch {
             prox: Proximity::with_capacity(cls, 2 * triangles),
             seen: IdSet::new(triangles),
             between: Between::default(),
+            pieces,
         }
     }
 }
@@ -435,8 +440,18 @@ fn band_and_sweep(
     // at a corner of its triangle is that flat triangle, which passes when tol.outside <= sweep:
     // every live triangle lies in T (a checked one) or is an unchanged face of the joined
     // voxels, on a voxel outside W (within √3/2 of its centre).
-    let sweep = opts.sweep;
     let moved: Vec<[DVec3; 3]> = new.iter().map(|(_, q)| *q).collect();
+    // With the swept volume's pieces known, exactly: the band check has put the new triangles
+    // in T, so the old and new ones both miss the swept volume, and the winding number of
+    // old - new is constant on each piece (docs/design.md, "The sweep check by pieces").
+    if let Some(pieces) = scratch.pieces {
+        return if pieces.swallowed(swept, &moved) {
+            Err(Reject::Sweep)
+        } else {
+            Ok(())
+        };
+    }
+    let sweep = opts.sweep;
     match prox.between_shallow(&mut scratch.between, swept, &moved, sweep, r_min) {
         Some(true) => return Ok(()),
         Some(false) => return Err(Reject::Sweep),

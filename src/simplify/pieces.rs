@@ -1,0 +1,295 @@
+//! The sweep check by the swept volume's own pieces (docs/design.md, "The sweep check by
+//! pieces"): exact and cheap once the band check has passed.
+//!
+//! A collapse replaces the old triangles O around its edge by the new ones N; the mesh's winding
+//! number changes exactly where that of the closed surface O - N is not zero. Every live triangle
+//! misses the swept volume A (it lies in the tolerance volume T, or is a face of the joined
+//! voxels on an outside voxel), and so does every new triangle once the band check has passed.
+//! So O ∪ N misses A, and the winding number of O - N is constant on each connected subset of
+//! A: the collapse leaves every point of A enclosed if, for every connected piece S of A in a
+//! list covering A, it is zero at one point of S. It is zero at every point outside the box of
+//! O ∪ N; so a piece with a known point outside that box needs nothing computed, and the others
+//! one winding number at their first point.
+//!
+//! The pieces are each part's connected components (triangles sharing a vertex position) at
+//! each row of its motion: a component's motion from one row to the next is connected and holds
+//! it, so they cover A with the motion between rows too.
+
+use std::collections::HashMap;
+use std::hash::BuildHasherDefault;
+
+use glam::DVec3;
+
+use super::band::{pack_cell, KeyHasher};
+use crate::input::posed::SweepInput;
+
+/// Pieces at most (two points each, 48 bytes): beyond this the region tests decide as before.
+pub const MAX_PIECES: usize = 1 << 20;
+
+/// Edge of the cells pieces are filed under (by their first point), grid units.
+const CELL: f64 = 8.0;
+
+/// How far a winding number computed in f64 may lie from an integer before the check gives up
+/// (and rejects, which is sound). Points of A are at least the clearance (0.07 voxels) from
+/// O and N, where the solid angles are accurate to about 1e-12.
+const WINDING_SLACK: f64 = 0.1;
+
+/// Connected pieces of the swept volume, each as two of its points (grid units): the ends of its
+/// component's extent along the part's longest local axis.
+pub struct Pieces {
+    points: Vec<[DVec3; 2]>,
+    cells: HashMap<u64, Vec<u32>, BuildHasherDefault<KeyHasher>>,
+}
+
+impl Pieces {
+    /// The pieces of `input`'s swept volume: every part's components at every row. None when
+    /// there would be more than [`MAX_PIECES`].
+    pub fn of(input: &SweepInput) -> Option<Pieces> {
+        let mut count = 0usize;
+        let mut per_part = Vec::with_capacity(input.parts.len());
+        for (k, part) in input.parts.iter().enumerate() {
+            let start = part.tri_start as usize;
+            let tris = &input.triangles[start..start + part.tri_count as usize];
+            let ends = component_ends(tris);
+            let rows = input.poses.rows(k);
+            count = count.saturating_add(ends.len().saturating_mul(rows.len()));
+            if count > MAX_PIECES {
+                return None;
+            }
+            per_part.push((ends, rows));
+        }
+        let mut points = Vec::with_capacity(count);
+        for (ends, rows) in per_part {
+            for pose in rows {
+                points.extend(ends.iter().map(|e| e.map(|p| pose.transform_point3(p))));
+            }
+        }
+        Some(Pieces::from_points(points))
+    }
+
+    /// Pieces given by two points each (grid units).
+    pub(crate) fn from_points(points: Vec<[DVec3; 2]>) -> Pieces {
+        let mut cells: HashMap<u64, Vec<u32>, BuildHasherDefault<KeyHasher>> = HashMap::default();
+        for (i, p) in points.iter().enumerate() {
+            cells.entry(cell_key(p[0])).or_default().push(i as u32);
+        }
+        Pieces { points, cells }
+    }
+
+    pub fn len(&self) -> usize {
+        self.points.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.points.is_empty()
+    }
+
+    /// Whether replacing `old` by `new` (a closed surface O - N: they share their boundary; both
+    /// missing the swept volume) may change the winding number at a point of a piece: true when
+    /// O - N winds around a piece's first point, or when f64 cannot tell.
+    pub fn swallowed(&self, old: &[[DVec3; 3]], new: &[[DVec3; 3]]) -> bool {
+        let (mut lo, mut hi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+        for p in old.iter().chain(new).flatten() {
+            lo = lo.min(*p);
+            hi = hi.max(*p);
+        }
+        let inside = |p: DVec3| p.cmpge(lo).all() && p.cmple(hi).all();
+        let (clo, chi) = (cell_of(lo), cell_of(hi));
+        for x in clo[0]..=chi[0] {
+            for y in clo[1]..=chi[1] {
+                for z in clo[2]..=chi[2] {
+                    let Some(ids) = self.cells.get(&pack_cell([x, y, z])) else {
+                        continue;
+                    };
+                    for &i in ids {
+                        let [p, q] = self.points[i as usize];
+                        if inside(p) && inside(q) && winds(old, new, p) {
+                            return true;
+                        }
+                    }
+                }
+            }
+        }
+        false
+    }
+}
+
+fn cell_of(p: DVec3) -> [i64; 3] {
+    (p / CELL).floor().to_array().map(|x| x as i64)
+}
+
+fn cell_key(p: DVec3) -> u64 {
+    pack_cell(cell_of(p))
+}
+
+/// The winding number of the closed surface `tris` around `p` (not on it).
+#[cfg(test)]
+pub(super) fn winding(tris: &[[DVec3; 3]], p: DVec3) -> f64 {
+    tris.iter().map(|t| solid_angle(p, t)).sum::<f64>() / (4.0 * std::f64::consts::PI)
+}
+
+/// Whether the closed surface `old` - `new` winds around `p` (or f64 cannot tell).
+fn winds(old: &[[DVec3; 3]], new: &[[DVec3; 3]], p: DVec3) -> bool {
+    let sum = old.iter().map(|t| solid_angle(p, t)).sum::<f64>()
+        - new.iter().map(|t| solid_angle(p, t)).sum::<f64>();
+    let w = sum / (4.0 * std::f64::consts::PI);
+    (w - w.round()).abs() > WINDING_SLACK || w.round() != 0.0
+}
+
+/// The signed solid angle of triangle `t` seen from `p` (Van Oosterom and Strackee).
+fn solid_angle(p: DVec3, t: &[DVec3; 3]) -> f64 {
+    let (a, b, c) = (t[0] - p, t[1] - p, t[2] - p);
+    let (la, lb, lc) = (a.length(), b.length(), c.length());
+    let num = a.dot(b.cross(c));
+    let den = la * lb * lc + a.dot(b) * lc + a.dot(c) * lb + b.dot(c) * la;
+    2.0 * num.atan2(den)
+}
+
+/// Per connected component of `tris` (local f32 vertices; triangles sharing a vertex position
+/// are connected), the component's vertices with the least and the greatest coordinate along
+/// the axis where all of `tris` extend most.
+fn component_ends(tris: &[[f32; 9]]) -> Vec<[DVec3; 2]> {
+    let vertex = |t: &[f32; 9], k: usize| {
+        DVec3::new(t[3 * k] as f64, t[3 * k + 1] as f64, t[3 * k + 2] as f64)
+    };
+    let (mut lo, mut hi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+    for t in tris {
+        for k in 0..3 {
+            lo = lo.min(vertex(t, k));
+            hi = hi.max(vertex(t, k));
+        }
+    }
+    let axis = (hi - lo).max_position();
+    // Union-find over vertex positions (exact bits): each triangle joins its three.
+    let mut id: HashMap<[u32; 3], u32> = HashMap::new();
+    let mut parent: Vec<u32> = Vec::new();
+    fn find(parent: &mut [u32], mut x: u32) -> u32 {
+        while parent[x as usize] != x {
+            parent[x as usize] = parent[parent[x as usize] as usize];
+            x = parent[x as usize];
+        }
+        x
+    }
+    let mut corner = Vec::with_capacity(tris.len() * 3);
+    for t in tris {
+        let ids: [u32; 3] = std::array::from_fn(|k| {
+            let key = [
+                t[3 * k].to_bits(),
+                t[3 * k + 1].to_bits(),
+                t[3 * k + 2].to_bits(),
+            ];
+            let fresh = parent.len() as u32;
+            let v = *id.entry(key).or_insert(fresh);
+            if v == fresh {
+                parent.push(fresh);
+            }
+            v
+        });
+        for k in 1..3 {
+            let (a, b) = (find(&mut parent, ids[0]), find(&mut parent, ids[k]));
+            parent[a.max(b) as usize] = a.min(b);
+        }
+        corner.extend((0..3).map(|k| (ids[k], vertex(t, k))));
+    }
+    // Per root: (least, greatest) vertex along the axis, in first-seen order of the roots.
+    let mut ends: Vec<[DVec3; 2]> = Vec::new();
+    let mut slot: HashMap<u32, usize> = HashMap::new();
+    for (v, p) in corner {
+        let root = find(&mut parent, v);
+        let at = *slot.entry(root).or_insert_with(|| {
+            ends.push([p, p]);
+            ends.len() - 1
+        });
+        let e = &mut ends[at];
+        if p[axis] < e[0][axis] {
+            e[0] = p;
+        }
+        if p[axis] > e[1][axis] {
+            e[1] = p;
+        }
+    }
+    ends
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn v(x: f64, y: f64, z: f64) -> DVec3 {
+        DVec3::new(x, y, z)
+    }
+
+    /// A closed octahedron around `c` (radius r), outward faces.
+    fn octahedron(c: DVec3, r: f64) -> Vec<[DVec3; 3]> {
+        let (px, nx, py, ny, pz, nz) = (
+            c + v(r, 0.0, 0.0),
+            c - v(r, 0.0, 0.0),
+            c + v(0.0, r, 0.0),
+            c - v(0.0, r, 0.0),
+            c + v(0.0, 0.0, r),
+            c - v(0.0, 0.0, r),
+        );
+        vec![
+            [px, py, pz],
+            [py, nx, pz],
+            [nx, ny, pz],
+            [ny, px, pz],
+            [py, px, nz],
+            [nx, py, nz],
+            [ny, nx, nz],
+            [px, ny, nz],
+        ]
+    }
+
+    #[test]
+    fn winding_of_a_closed_surface_counts_what_it_encloses() {
+        let o = octahedron(v(0.0, 0.0, 0.0), 2.0);
+        assert!(winds(&o, &[], v(0.1, 0.2, -0.3)));
+        assert!(!winds(&o, &[], v(3.0, 0.0, 0.0)));
+        assert!(!winds(&o, &[], v(1.0, 1.0, 1.0))); // beyond the face x + y + z = 2
+                                                    // The same surface as old and new: nothing changes anywhere.
+        assert!(!winds(&o, &o, v(0.1, 0.2, -0.3)));
+    }
+
+    #[test]
+    fn a_piece_is_swallowed_only_when_both_its_points_lie_in_the_box_and_it_is_enclosed() {
+        let o = octahedron(v(10.0, 10.0, 10.0), 2.0);
+        let inside = Pieces::from_points(vec![[v(10.2, 10.0, 10.0), v(9.8, 10.1, 10.0)]]);
+        assert!(inside.swallowed(&o, &[]));
+        // Its second point outside the box: the piece reaches out of the region, so (missing
+        // O and N) it cannot lie in it.
+        let reaching = Pieces::from_points(vec![[v(10.2, 10.0, 10.0), v(13.0, 10.0, 10.0)]]);
+        assert!(!reaching.swallowed(&o, &[]));
+        let outside = Pieces::from_points(vec![[v(11.5, 11.5, 10.0), v(11.5, 11.5, 10.0)]]);
+        assert!(!outside.swallowed(&o, &[]));
+        // Many pieces over many cells, some in the box but outside the surface (|x - 10| + 1.9
+        // + 1.9 > 2), none enclosed; then one enclosed.
+        let many: Vec<[DVec3; 2]> = (0..50)
+            .map(|i| {
+                let p = v(i as f64 * 0.7, 11.9, 11.9);
+                [p, p]
+            })
+            .collect();
+        let mut with = many.clone();
+        with.push([v(10.3, 10.0, 10.0), v(10.3, 10.0, 10.0)]);
+        assert!(!Pieces::from_points(many).swallowed(&o, &[]));
+        assert!(Pieces::from_points(with).swallowed(&o, &[]));
+    }
+
+    #[test]
+    fn components_are_joined_by_shared_vertex_positions() {
+        let t = |a: [f32; 3], b: [f32; 3], c: [f32; 3]| {
+            [a[0], a[1], a[2], b[0], b[1], b[2], c[0], c[1], c[2]]
+        };
+        let tris = vec![
+            t([0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]),
+            t([5.0, 0.0, 0.0], [6.0, 0.0, 0.0], [5.0, 1.0, 0.0]),
+            t([1.0, 0.0, 0.0], [2.0, 0.0, 0.0], [1.0, 1.0, 0.0]), // joins the first
+        ];
+        let ends = component_ends(&tris);
+        assert_eq!(ends.len(), 2);
+        assert_eq!(ends[0], [v(0.0, 0.0, 0.0), v(2.0, 0.0, 0.0)]);
+        assert_eq!(ends[1][0].x, 5.0);
+        assert_eq!(ends[1][1].x, 6.0);
+    }
+}
