@@ -162,3 +162,48 @@ fn blocks_holding_a_voxel_or_two_of_surface() {
         );
     }
 }
+
+/// The sweep check's pieces (docs/design.md, "The sweep check by pieces"): one per connected
+/// component of a part (triangles joined by shared vertex positions) per row, also with the
+/// screw motion between rows, each given by points of the posed part.
+#[test]
+fn pieces_are_the_parts_components_at_each_row() {
+    let (a, b, c) = (
+        slab([0.0, 0.0, 0.0], [1.0, 1.0, 1.0]),
+        slab([3.0, 0.0, 0.0], [4.0, 1.0, 1.0]),
+        slab([1.0, 1.0, 1.0], [2.0, 2.0, 2.0]), // shares a corner with a: one component
+    );
+    let mut g = a.clone();
+    for other in [&b, &c] {
+        let base = g.parts[0].positions.len() as u32;
+        g.parts[0]
+            .positions
+            .extend(other.parts[0].positions.iter().copied());
+        g.parts[0]
+            .triangles
+            .extend(other.parts[0].triangles.iter().map(|t| t.map(|v| v + base)));
+    }
+    let poses: Vec<DMat4> = (0..3)
+        .map(|k| DMat4::from_translation(DVec3::new(0.3 * k as f64, 0.1, 0.0)))
+        .collect();
+    for motion in [
+        sweptvol::input::motion::Motion::Discrete,
+        sweptvol::input::motion::Motion::Screw,
+    ] {
+        let input = common::build_with(&g, &poses, 24, motion);
+        let pieces = Pieces::of(&input).expect("few pieces");
+        assert_eq!(pieces.len(), 2 * poses.len(), "{motion:?}");
+        let vertices: Vec<V3> = posed_grid_triangles(&g, &poses, &input)
+            .into_iter()
+            .flatten()
+            .collect();
+        for p in pieces.points().iter().flatten() {
+            assert!(
+                vertices
+                    .iter()
+                    .any(|v| (DVec3::from_array(*v) - *p).length() < 1e-9),
+                "{motion:?}: {p} is no posed vertex"
+            );
+        }
+    }
+}

@@ -76,6 +76,11 @@ impl Pieces {
         Pieces { points, cells }
     }
 
+    /// Each piece's two points (grid units).
+    pub fn points(&self) -> &[[DVec3; 2]] {
+        &self.points
+    }
+
     pub fn len(&self) -> usize {
         self.points.len()
     }
