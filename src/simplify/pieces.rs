@@ -99,18 +99,21 @@ impl Pieces {
             hi = hi.max(*p);
         }
         let inside = |p: DVec3| p.cmpge(lo).all() && p.cmple(hi).all();
+        let swallows = |&[p, q]: &[DVec3; 2]| inside(p) && inside(q) && winds(old, new, p);
         let (clo, chi) = (cell_of(lo), cell_of(hi));
+        let cells = (0..3).fold(1.0, |n, a| n * (chi[a] - clo[a] + 1) as f64);
+        if cells > self.points.len() as f64 {
+            // A box wider than the pieces are many (late collapses, few pieces): each once.
+            return self.points.iter().any(swallows);
+        }
         for x in clo[0]..=chi[0] {
             for y in clo[1]..=chi[1] {
                 for z in clo[2]..=chi[2] {
                     let Some(ids) = self.cells.get(&pack_cell([x, y, z])) else {
                         continue;
                     };
-                    for &i in ids {
-                        let [p, q] = self.points[i as usize];
-                        if inside(p) && inside(q) && winds(old, new, p) {
-                            return true;
-                        }
+                    if ids.iter().any(|&i| swallows(&self.points[i as usize])) {
+                        return true;
                     }
                 }
             }
@@ -278,6 +281,10 @@ mod tests {
         let mut with = many.clone();
         with.push([v(10.3, 10.0, 10.0), v(10.3, 10.0, 10.0)]);
         assert!(!Pieces::from_points(many).swallowed(&o, &[]));
+        // Few pieces under a box of many cells: looked at one by one, same answers.
+        let wide = octahedron(v(10.0, 10.0, 10.0), 30.0);
+        assert!(!Pieces::from_points(vec![[v(35.0, 35.0, 10.0); 2]]).swallowed(&wide, &[]));
+        assert!(Pieces::from_points(vec![[v(10.0, 10.0, 10.0); 2]]).swallowed(&wide, &[]));
         assert!(Pieces::from_points(with).swallowed(&o, &[]));
     }
 
