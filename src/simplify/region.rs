@@ -433,13 +433,6 @@ fn band_and_sweep(
     {
         return Err(Reject::Band);
     }
-    // The region swept by the collapse: every point whose winding number it changes must be
-    // within `sweep` < δ of an outside voxel's centre, hence outside the swept volume. First as
-    // the region between the old and the new surface (`between`), where a projection lays
-    // each over the plane once; else as the tetrahedra (old triangle, v). A tetrahedron with v
-    // at a corner of its triangle is that flat triangle, which passes when tol.outside <= sweep:
-    // every live triangle lies in T (a checked one) or is an unchanged face of the joined
-    // voxels, on a voxel outside W (within √3/2 of its centre).
     let moved: Vec<[DVec3; 3]> = new.iter().map(|(_, q)| *q).collect();
     // With the swept volume's pieces known, exactly: the band check has put the new triangles
     // in T, so the old and new ones both miss the swept volume, and the winding number of
@@ -451,6 +444,13 @@ fn band_and_sweep(
             Ok(())
         };
     }
+    // Else sufficiently: every point whose winding number the collapse changes must be within
+    // `sweep` < δ of an outside voxel's centre, hence outside the swept volume. First as the
+    // region between the old and the new surface (`between`), where a projection lays each
+    // over the plane once; else as the tetrahedra (old triangle, v). A tetrahedron with v
+    // at a corner of its triangle is that flat triangle, which passes when tol.outside <= sweep:
+    // every live triangle lies in T (a checked one) or is an unchanged face of the joined
+    // voxels, on a voxel outside W (within √3/2 of its centre).
     let sweep = opts.sweep;
     match prox.between_shallow(&mut scratch.between, swept, &moved, sweep, r_min) {
         Some(true) => return Ok(()),
