@@ -22,6 +22,7 @@ use glam::DVec3;
 
 use super::band::{pack_cell, KeyHasher};
 use crate::input::posed::SweepInput;
+use crate::verify::geom::winding_share;
 
 /// Pieces at most (two points each, 48 bytes): beyond this the region tests decide as before.
 pub const MAX_PIECES: usize = 1 << 20;
@@ -130,27 +131,18 @@ fn cell_key(p: DVec3) -> u64 {
     pack_cell(cell_of(p))
 }
 
-/// The winding number of the closed surface `tris` around `p` (not on it).
-#[cfg(test)]
+/// The winding number of the closed surface `tris` around `p` (not on it): its triangles'
+/// signed solid angles over 4π.
 pub(super) fn winding(tris: &[[DVec3; 3]], p: DVec3) -> f64 {
-    tris.iter().map(|t| solid_angle(p, t)).sum::<f64>() / (4.0 * std::f64::consts::PI)
+    tris.iter()
+        .map(|t| winding_share(p, t[0], t[1], t[2]))
+        .sum()
 }
 
 /// Whether the closed surface `old` - `new` winds around `p` (or f64 cannot tell).
 fn winds(old: &[[DVec3; 3]], new: &[[DVec3; 3]], p: DVec3) -> bool {
-    let sum = old.iter().map(|t| solid_angle(p, t)).sum::<f64>()
-        - new.iter().map(|t| solid_angle(p, t)).sum::<f64>();
-    let w = sum / (4.0 * std::f64::consts::PI);
+    let w = winding(old, p) - winding(new, p);
     (w - w.round()).abs() > WINDING_SLACK || w.round() != 0.0
-}
-
-/// The signed solid angle of triangle `t` seen from `p` (Van Oosterom and Strackee).
-fn solid_angle(p: DVec3, t: &[DVec3; 3]) -> f64 {
-    let (a, b, c) = (t[0] - p, t[1] - p, t[2] - p);
-    let (la, lb, lc) = (a.length(), b.length(), c.length());
-    let num = a.dot(b.cross(c));
-    let den = la * lb * lc + a.dot(b) * lc + a.dot(c) * lb + b.dot(c) * la;
-    2.0 * num.atan2(den)
 }
 
 /// Per connected component of `tris` (local f32 vertices; triangles sharing a vertex position
