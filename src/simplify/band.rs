@@ -141,6 +141,8 @@ pub struct Proximity<'c> {
     slots: Vec<[u64; 3]>,
     /// The last entry looked up (key, entry); key u64::MAX: none.
     last: (u64, u128),
+    /// Whole triangles' verdicts, direct-mapped by their exact corners ([`Self::triangle_within`]).
+    verdicts: Vec<Option<Verdict3>>,
     /// Buffers of [`Self::refine`], kept between calls.
     triangles: Refinement<3>,
     tetrahedra: Refinement<4>,
@@ -165,6 +167,23 @@ const OCCUPIED: u64 = 1 << 63;
 
 /// Cache slots per [`Proximity`]: 24 bytes each, so at most 96 MiB per worker.
 const MAX_SLOTS: usize = 1 << 22;
+
+/// Longest edge (grid units) from which [`Proximity::probes_miss`] is worth asking before the
+/// refinement: at n = 512 it saved about 3% of the simplifier's time (2 and 4 voxels measured
+/// alike).
+const PROBE_FROM: f64 = 4.0;
+
+/// Slots of [`Proximity::verdicts`] (about 100 bytes each).
+const VERDICT_SLOTS: usize = 4096;
+
+/// A triangle test asked and answered: [`Proximity::triangle_within`]`(t, tol, r_min)` = `within`.
+#[derive(Clone, Copy)]
+struct Verdict3 {
+    t: [DVec3; 3],
+    tol: Tolerance,
+    r_min: f64,
+    within: bool,
+}
 
 /// Nodes one region test may visit before it gives up (and rejects, which is always sound).
 const NODE_BUDGET: usize = 4096;
@@ -211,6 +230,7 @@ impl<'c> Proximity<'c> {
             cls,
             slots: vec![[0; 3]; n],
             last: (u64::MAX, 0),
+            verdicts: vec![None; VERDICT_SLOTS],
             triangles: Refinement::default(),
             tetrahedra: Refinement::default(),
         }
@@ -249,6 +269,25 @@ impl<'c> Proximity<'c> {
         let near = self.nearest(p);
         let (d_out, d_in) = near.centre_distances();
         tol.admits(d_out, d_in)
+    }
+
+    /// Whether a long triangle `t` (an edge of [`PROBE_FROM`] or more) has its centroid or an
+    /// edge's midpoint out of `tol`. Each probe is a point of t, so a yes means that t does not
+    /// lie in T and [`Self::triangle_within`] says no too, only sooner: a triangle that leaves
+    /// T mostly does so over a wide part, which the refinement may reach last.
+    pub fn probes_miss(&mut self, t: &[DVec3; 3], tol: Tolerance) -> bool {
+        let longest = (0..3)
+            .map(|k| (t[k] - t[(k + 1) % 3]).length_squared())
+            .fold(0.0, f64::max);
+        longest >= PROBE_FROM * PROBE_FROM
+            && [
+                (t[0] + t[1] + t[2]) / 3.0,
+                (t[0] + t[1]) / 2.0,
+                (t[1] + t[2]) / 2.0,
+                (t[2] + t[0]) / 2.0,
+            ]
+            .iter()
+            .any(|p| !self.point_within(*p, tol))
     }
 
     /// What [`Self::distance`] gives, with p's voxel and the other-class voxel whose centre is
@@ -404,8 +443,34 @@ impl<'c> Proximity<'c> {
     /// It fails when c is farther than `tol` allows from the other class's centres (c itself is
     /// out). Pieces split into four at their edge midpoints. Sound: may reject, never wrongly
     /// accepts.
+    ///
+    /// The verdict is a function of `t`, `tol` and `r_min` alone (the memo only saves work), so
+    /// it is kept per exact triangle: a collapse retried after a neighbour's often asks about
+    /// the same large triangles again (at n = 256, 2.7% of the calls but 17% of the lookups).
     pub fn triangle_within(&mut self, t: [DVec3; 3], tol: Tolerance, r_min: f64) -> bool {
         debug_assert!(tol.outside.max(tol.inside) < CENTRE_REACH && r_min > 0.0);
+        let slot = t.iter().flat_map(|p| p.to_array()).fold(0u64, |h, x| {
+            (h ^ x.to_bits()).wrapping_mul(0x9e37_79b9_7f4a_7c15)
+        }) as usize
+            >> 7
+            & (VERDICT_SLOTS - 1);
+        if let Some(k) = self.verdicts[slot] {
+            if k.t == t && k.tol == tol && k.r_min == r_min {
+                return k.within;
+            }
+        }
+        let within = self.refine_triangle(t, tol, r_min);
+        self.verdicts[slot] = Some(Verdict3 {
+            t,
+            tol,
+            r_min,
+            within,
+        });
+        within
+    }
+
+    /// [`Self::triangle_within`], decided.
+    fn refine_triangle(&mut self, t: [DVec3; 3], tol: Tolerance, r_min: f64) -> bool {
         let flat_from = tol.outside.min(tol.inside) - HALF_DIAGONAL;
         let judge = |me: &Self, piece: &[DVec3; 3], r: f64, near: &Near| {
             let (d_out, d_in) = near.centre_distances();
@@ -714,6 +779,51 @@ mod tests {
             DVec3::new(1.2, 2.8, 4.15),
         ];
         assert!(prox.triangle_within(below, TOL, 0.05));
+    }
+
+    /// The two shortcuts of the triangle test answer what the refinement does: a kept verdict
+    /// (asked again after thousands of other triangles, so slots are shared and overwritten)
+    /// and the probes of long triangles (a miss only where the refinement says no).
+    #[test]
+    fn kept_verdicts_and_probes_agree_with_the_refinement() {
+        let (mut probed_out, mut within, mut outside) = (0, 0, 0);
+        for seed in 0..2 {
+            let cls = random_at([16, 16, 16], seed + 40);
+            let (mut kept, mut fresh) = (Proximity::new(&cls), Proximity::new(&cls));
+            let mut rnd = uniform(seed + 90);
+            let triangles: Vec<[DVec3; 3]> = (0..VERDICT_SLOTS + 1500)
+                .map(|_| {
+                    let c = DVec3::new(rnd(), rnd(), rnd()) * 16.0;
+                    let size = 0.2 + 9.0 * rnd() * rnd();
+                    std::array::from_fn(|_| c + (DVec3::new(rnd(), rnd(), rnd()) - 0.5) * size)
+                })
+                .collect();
+            for round in 0..2 {
+                for t in &triangles {
+                    let truth = fresh.refine_triangle(*t, TOL, 0.05);
+                    assert_eq!(
+                        kept.triangle_within(*t, TOL, 0.05),
+                        truth,
+                        "round {round}: {t:?}"
+                    );
+                    if round == 0 {
+                        if fresh.probes_miss(t, TOL) {
+                            assert!(!truth, "{t:?}: a probe missed, the refinement accepts");
+                            probed_out += 1;
+                        }
+                        (within, outside) = if truth {
+                            (within + 1, outside)
+                        } else {
+                            (within, outside + 1)
+                        };
+                    }
+                }
+            }
+        }
+        assert!(
+            probed_out > 100 && within > 500 && outside > 500,
+            "{probed_out} {within} {outside}"
+        );
     }
 
     /// Random triangles near random voxel sets: whatever the test accepts has every sampled

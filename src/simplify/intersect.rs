@@ -102,7 +102,24 @@ pub fn triangle_distance(s: [DVec3; 3], t: [DVec3; 3]) -> f64 {
 /// they share: a pair with no common vertex closer than [`TOUCH`]; a pair with a common edge
 /// folded flat onto itself; a pair with one common vertex whose far edges cross the other
 /// triangle, or, when coplanar, whose corners at that vertex overlap; the same triangle twice.
+#[cfg(test)]
 pub fn conflict(si: [u32; 3], s: [DVec3; 3], ti: [u32; 3], t: [DVec3; 3]) -> bool {
+    conflict_with_normal(si, s, unit_normal(s), ti, t)
+}
+
+/// Triangle `s`'s unit normal (zero when degenerate).
+pub fn unit_normal(s: [DVec3; 3]) -> DVec3 {
+    (s[1] - s[0]).cross(s[2] - s[0]).normalize_or_zero()
+}
+
+/// [`conflict`] with `s`'s [`unit_normal`] `ns` given: a new triangle is tested against dozens.
+pub fn conflict_with_normal(
+    si: [u32; 3],
+    s: [DVec3; 3],
+    ns: DVec3,
+    ti: [u32; 3],
+    t: [DVec3; 3],
+) -> bool {
     // Shared vertices as (index in s, index in t); a triangle's ids are distinct, so at most 3.
     let mut common = [(0usize, 0usize); 3];
     let mut shared = 0;
@@ -114,10 +131,7 @@ pub fn conflict(si: [u32; 3], s: [DVec3; 3], ti: [u32; 3], t: [DVec3; 3]) -> boo
             }
         }
     }
-    let (ns, nt) = (
-        (s[1] - s[0]).cross(s[2] - s[0]).normalize_or_zero(),
-        (t[1] - t[0]).cross(t[2] - t[0]).normalize_or_zero(),
-    );
+    let nt = unit_normal(t);
     match shared {
         0 => {
             if apart(s, ns, &t) || apart(t, nt, &s) {

@@ -424,9 +424,11 @@ fn band_and_sweep(
     new: &[([u32; 3], [DVec3; 3])],
 ) -> Result<(), Reject> {
     let prox = &mut scratch.prox;
-    // The tolerance volume for the new surface; the new vertex first, the likeliest to be out.
+    // The tolerance volume for the new surface; the new vertex first, the likeliest to be out,
+    // then a few points of each long new triangle, then the whole triangles.
     let (tol, r_min) = (opts.tolerance, opts.min_radius);
     if !prox.point_within(v, tol)
+        || new.iter().any(|(_, q)| prox.probes_miss(q, tol))
         || !new
             .iter()
             .all(|(_, q)| prox.triangle_within(*q, tol, r_min))

@@ -5,7 +5,9 @@ use std::collections::HashMap;
 
 use glam::DVec3;
 
-use super::intersect::{bounds, bounds_meet, boxes_meet, conflict, TriangleHash};
+use super::intersect::{
+    bounds, bounds_meet, boxes_meet, conflict_with_normal, unit_normal, TriangleHash,
+};
 use super::quadric::{cheapest, Quadric};
 use super::queue::{bucket, Candidate, Queue};
 // Scratch, IdSet, Plan and Reject live with the checks that make them (region.rs), which
@@ -41,7 +43,8 @@ pub(super) fn meets_any<'a>(
     mut others: impl Iterator<Item = &'a ([u32; 3], [DVec3; 3])>,
 ) -> bool {
     let (ti, q) = t;
-    others.any(|(ui, up)| boxes_meet(q, up) && conflict(*ti, *q, *ui, *up))
+    let n = unit_normal(*q);
+    others.any(|(ui, up)| boxes_meet(q, up) && conflict_with_normal(*ti, *q, n, *ui, *up))
 }
 
 /// Parks rejected edge (a, b) under both endpoints, once.
