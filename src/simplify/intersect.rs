@@ -547,12 +547,44 @@ mod tests {
         );
     }
 
+    /// How many cases of an agreement test were near (below TOUCH), far, and just over TOUCH.
+    #[derive(Default)]
+    struct Tally {
+        near: usize,
+        far: usize,
+        close_calls: usize,
+    }
+
+    impl Tally {
+        fn add(&mut self, exact: f64) {
+            if exact < TOUCH {
+                self.near += 1;
+            } else {
+                self.far += 1;
+            }
+            if exact > TOUCH && exact < 4.0 * TOUCH {
+                self.close_calls += 1;
+            }
+        }
+
+        /// The cases covered both answers and the hard ones between.
+        fn assert_at_least(&self, near: usize, far: usize, close_calls: usize) {
+            assert!(
+                self.near > near && self.far > far && self.close_calls > close_calls,
+                "{} near, {} far, {} just over TOUCH",
+                self.near,
+                self.far,
+                self.close_calls
+            );
+        }
+    }
+
     /// The early answer of `segment_near` never changes the exact one: random segments and
     /// triangles, many of them passing the triangle's plane or edges within a few TOUCH.
     #[test]
     fn segment_near_agrees_with_the_distance() {
         let mut f = uniform(0x9e37_79b9_7f4a_7c15);
-        let (mut near, mut far, mut close_calls) = (0, 0, 0);
+        let mut tally = Tally::default();
         for round in 0..200_000 {
             let t: [DVec3; 3] = std::array::from_fn(|_| v(f() * 4.0, f() * 4.0, f() * 4.0));
             // A segment through a point of t or of an edge of t, shifted off it by a few TOUCH
@@ -573,19 +605,9 @@ mod tests {
                 exact < TOUCH,
                 "{p} {q} {t:?}: {exact}"
             );
-            if exact < TOUCH {
-                near += 1;
-            } else {
-                far += 1;
-            }
-            if exact > TOUCH && exact < 4.0 * TOUCH {
-                close_calls += 1;
-            }
+            tally.add(exact);
         }
-        assert!(
-            near > 10_000 && far > 10_000 && close_calls > 1000,
-            "{near} near, {far} far, {close_calls} just over TOUCH"
-        );
+        tally.assert_at_least(10_000, 10_000, 1000);
     }
 
     /// The triangle-pair test with its separating axes first answers as the exact distance does,
@@ -594,7 +616,7 @@ mod tests {
     #[test]
     fn triangles_near_agrees_with_the_distance() {
         let mut f = uniform(0x51_7cc1_b727_220a);
-        let (mut near, mut far, mut close_calls) = (0, 0, 0);
+        let mut tally = Tally::default();
         for round in 0..100_000 {
             let s: [DVec3; 3] = std::array::from_fn(|_| v(f() * 4.0, f() * 4.0, f() * 4.0));
             // Three kinds of t, at about d from s: a unit away anywhere; a triangle of s's plane
@@ -628,19 +650,9 @@ mod tests {
             };
             let exact = triangle_distance(s, t);
             assert_eq!(triangles_near(s, t), exact < TOUCH, "{s:?} {t:?}: {exact}");
-            if exact < TOUCH {
-                near += 1;
-            } else {
-                far += 1;
-            }
-            if exact > TOUCH && exact < 4.0 * TOUCH {
-                close_calls += 1;
-            }
+            tally.add(exact);
         }
-        assert!(
-            near > 5_000 && far > 5_000 && close_calls > 500,
-            "{near} near, {far} far, {close_calls} just over TOUCH"
-        );
+        tally.assert_at_least(5_000, 5_000, 500);
     }
 
     /// Any triangle through a point of an inserted one finds it, however large and tilted the
