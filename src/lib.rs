@@ -28,7 +28,8 @@
 //! - [`verify`]: an independent certificate for any swept-volume mesh.
 //! - [`clearance`]: how far the swept volume stays from obstacles, as a guaranteed interval
 //!   (`pipeline::clearance` runs it on files); [`closest`], the exact closest points it shares
-//!   with the simplifier.
+//!   with the simplifier; [`union_find`], the connected components `verify` and the simplifier
+//!   both count.
 
 pub mod clearance;
 pub mod closest;
@@ -43,6 +44,7 @@ pub mod pipeline;
 pub mod simplify;
 pub mod surface;
 pub mod sweep;
+pub mod union_find;
 pub mod verify;
 pub mod voxels;
 pub mod watch;

@@ -21,7 +21,9 @@ use std::hash::BuildHasherDefault;
 use glam::DVec3;
 
 use super::band::{pack_cell, KeyHasher};
+use super::intersect::bounds;
 use crate::input::posed::SweepInput;
+use crate::union_find::UnionFind;
 use crate::verify::geom::winding_share;
 
 /// Pieces at most (two points each, 48 bytes): beyond this the region tests decide as before.
@@ -94,11 +96,8 @@ impl Pieces {
     /// missing the swept volume) may change the winding number at a point of a piece: true when
     /// O - N winds around a piece's first point, or when f64 cannot tell.
     pub fn swallowed(&self, old: &[[DVec3; 3]], new: &[[DVec3; 3]]) -> bool {
-        let (mut lo, mut hi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
-        for p in old.iter().chain(new).flatten() {
-            lo = lo.min(*p);
-            hi = hi.max(*p);
-        }
+        let ((olo, ohi), (nlo, nhi)) = (bounds(old.as_flattened()), bounds(new.as_flattened()));
+        let (lo, hi) = (olo.min(nlo), ohi.max(nhi));
         let inside = |p: DVec3| p.cmpge(lo).all() && p.cmple(hi).all();
         let swallows = |&[p, q]: &[DVec3; 2]| inside(p) && inside(q) && winds(old, new, p);
         let (clo, chi) = (cell_of(lo), cell_of(hi));
@@ -160,16 +159,9 @@ fn component_ends(tris: &[[f32; 9]]) -> Vec<[DVec3; 2]> {
         }
     }
     let axis = (hi - lo).max_position();
-    // Union-find over vertex positions (exact bits): each triangle joins its three.
+    // Sets of vertex positions (exact bits): each triangle joins its three.
     let mut id: HashMap<[u32; 3], u32> = HashMap::new();
-    let mut parent: Vec<u32> = Vec::new();
-    fn find(parent: &mut [u32], mut x: u32) -> u32 {
-        while parent[x as usize] != x {
-            parent[x as usize] = parent[parent[x as usize] as usize];
-            x = parent[x as usize];
-        }
-        x
-    }
+    let mut sets = UnionFind::new(0);
     let mut corner = Vec::with_capacity(tris.len() * 3);
     for t in tris {
         let ids: [u32; 3] = std::array::from_fn(|k| {
@@ -178,16 +170,10 @@ fn component_ends(tris: &[[f32; 9]]) -> Vec<[DVec3; 2]> {
                 t[3 * k + 1].to_bits(),
                 t[3 * k + 2].to_bits(),
             ];
-            let fresh = parent.len() as u32;
-            let v = *id.entry(key).or_insert(fresh);
-            if v == fresh {
-                parent.push(fresh);
-            }
-            v
+            *id.entry(key).or_insert_with(|| sets.push())
         });
         for k in 1..3 {
-            let (a, b) = (find(&mut parent, ids[0]), find(&mut parent, ids[k]));
-            parent[a.max(b) as usize] = a.min(b);
+            sets.join(ids[0], ids[k]);
         }
         corner.extend((0..3).map(|k| (ids[k], vertex(t, k))));
     }
@@ -195,7 +181,7 @@ fn component_ends(tris: &[[f32; 9]]) -> Vec<[DVec3; 2]> {
     let mut ends: Vec<[DVec3; 2]> = Vec::new();
     let mut slot: HashMap<u32, usize> = HashMap::new();
     for (v, p) in corner {
-        let root = find(&mut parent, v);
+        let root = sets.find(v);
         let at = *slot.entry(root).or_insert_with(|| {
             ends.push([p, p]);
             ends.len() - 1
@@ -246,8 +232,9 @@ mod tests {
         let o = octahedron(v(0.0, 0.0, 0.0), 2.0);
         assert!(winds(&o, &[], v(0.1, 0.2, -0.3)));
         assert!(!winds(&o, &[], v(3.0, 0.0, 0.0)));
-        assert!(!winds(&o, &[], v(1.0, 1.0, 1.0))); // beyond the face x + y + z = 2
-                                                    // The same surface as old and new: nothing changes anywhere.
+        // Beyond the face x + y + z = 2.
+        assert!(!winds(&o, &[], v(1.0, 1.0, 1.0)));
+        // The same surface as old and new: nothing changes anywhere.
         assert!(!winds(&o, &o, v(0.1, 0.2, -0.3)));
     }
 

@@ -10,6 +10,7 @@ use serde::Serialize;
 
 use super::bvh::Bvh;
 use super::geom;
+use crate::union_find::UnionFind;
 
 /// How many self-intersecting pairs are listed by index (all are counted).
 const LISTED_PAIRS: usize = 10;
@@ -115,21 +116,11 @@ pub fn check(tris: &[[DVec3; 3]], bvh: &Bvh) -> (Health, Vec<(DVec3, DVec3)>) {
 
     let non_manifold_vertices = count_pinched_vertices(&welded, points.len());
 
-    // Components by shared vertices (union-find).
-    let mut parent: Vec<u32> = (0..points.len() as u32).collect();
-    fn find(parent: &mut [u32], mut i: u32) -> u32 {
-        while parent[i as usize] != i {
-            parent[i as usize] = parent[parent[i as usize] as usize];
-            i = parent[i as usize];
-        }
-        i
-    }
+    // Components by shared vertices.
+    let mut sets = UnionFind::new(points.len());
     for t in &welded {
         for k in 1..3 {
-            let (ra, rb) = (find(&mut parent, t[0]), find(&mut parent, t[k]));
-            if ra != rb {
-                parent[ra as usize] = rb;
-            }
+            sets.join(t[0], t[k]);
         }
     }
     let mut used = vec![false; points.len()];
@@ -139,7 +130,7 @@ pub fn check(tris: &[[DVec3; 3]], bvh: &Bvh) -> (Health, Vec<(DVec3, DVec3)>) {
         }
     }
     let components = (0..points.len() as u32)
-        .filter(|&i| used[i as usize] && find(&mut parent, i) == i)
+        .filter(|&i| used[i as usize] && sets.find(i) == i)
         .count() as u64;
 
     // Self-intersections: boxes from the BVH, exact-ish edge-through-interior tests.
