@@ -811,11 +811,11 @@ mod tests {
                             assert!(!truth, "{t:?}: a probe missed, the refinement accepts");
                             probed_out += 1;
                         }
-                        (within, outside) = if truth {
-                            (within + 1, outside)
+                        if truth {
+                            within += 1;
                         } else {
-                            (within, outside + 1)
-                        };
+                            outside += 1;
+                        }
                     }
                 }
             }

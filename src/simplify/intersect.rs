@@ -123,10 +123,7 @@ pub fn triangle_distance(s: [DVec3; 3], t: [DVec3; 3]) -> f64 {
     best
 }
 
-/// Whether two mesh triangles (vertex ids `si`, `ti`, positions `s`, `t`) overlap beyond what
-/// they share: a pair with no common vertex closer than [`TOUCH`]; a pair with a common edge
-/// folded flat onto itself; a pair with one common vertex whose far edges cross the other
-/// triangle, or, when coplanar, whose corners at that vertex overlap; the same triangle twice.
+/// [`conflict_with_normal`] for tests, the normal computed here.
 #[cfg(test)]
 pub fn conflict(si: [u32; 3], s: [DVec3; 3], ti: [u32; 3], t: [DVec3; 3]) -> bool {
     conflict_with_normal(si, s, unit_normal(s), ti, t)
@@ -137,7 +134,11 @@ pub fn unit_normal(s: [DVec3; 3]) -> DVec3 {
     (s[1] - s[0]).cross(s[2] - s[0]).normalize_or_zero()
 }
 
-/// [`conflict`] with `s`'s [`unit_normal`] `ns` given: a new triangle is tested against dozens.
+/// Whether two mesh triangles (vertex ids `si`, `ti`, positions `s`, `t`; `ns` is s's
+/// [`unit_normal`], given since a new triangle is tested against dozens) overlap beyond what
+/// they share: a pair with no common vertex closer than [`TOUCH`]; a pair with a common edge
+/// folded flat onto itself; a pair with one common vertex whose far edges cross the other
+/// triangle, or, when coplanar, whose corners at that vertex overlap; the same triangle twice.
 pub fn conflict_with_normal(
     si: [u32; 3],
     s: [DVec3; 3],
@@ -622,7 +623,7 @@ mod tests {
             // Three kinds of t, at about d from s: a unit away anywhere; a triangle of s's plane
             // lifted by d (over s, so d is the distance); one whose nearest vertex lies d
             // beyond an edge of s, in s's plane, the rest farther out.
-            let n = (s[1] - s[0]).cross(s[2] - s[0]).normalize();
+            let n = unit_normal(s);
             let d = 4.0 * TOUCH * f();
             let t: [DVec3; 3] = match round % 3 {
                 0 => {

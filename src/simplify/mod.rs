@@ -11,7 +11,7 @@
 //!   between the old and the new surface (`between`) or of the tetrahedra joining the old
 //!   triangles to the new vertex being within `sweep` < δ of an outside voxel's centre;
 //! - no self-intersection: new triangles are tested against the triangles near them (a spatial
-//!   hash) and each other, conservatively (`intersect::conflict`);
+//!   hash) and each other, conservatively (`intersect::conflict_with_normal`);
 //! - topology: only edges with two faces whose endpoints are manifold and satisfy the link
 //!   condition collapse, so the mesh stays watertight and no fan is torn; no face may flip.
 //!
