@@ -216,7 +216,7 @@ fn simplify_block(
             .check_moving(&mut scratch, &opts, region.target(), in_box)
             .and_then(|plan| {
                 if !plan.in_plane {
-                    s.crosses_nothing(&mut scratch.seen, &plan)?;
+                    s.crosses_nothing(&mut scratch.crossing, &plan)?;
                 }
                 Ok(plan)
             });

@@ -123,10 +123,10 @@ pub fn triangle_distance(s: [DVec3; 3], t: [DVec3; 3]) -> f64 {
     best
 }
 
-/// [`conflict_with_normal`] for tests, the normal computed here.
+/// [`conflict_with_normals`] for tests, the normals computed here.
 #[cfg(test)]
 pub fn conflict(si: [u32; 3], s: [DVec3; 3], ti: [u32; 3], t: [DVec3; 3]) -> bool {
-    conflict_with_normal(si, s, unit_normal(s), ti, t)
+    conflict_with_normals(si, s, unit_normal(s), ti, t, unit_normal(t))
 }
 
 /// Triangle `s`'s unit normal (zero when degenerate).
@@ -134,17 +134,18 @@ pub fn unit_normal(s: [DVec3; 3]) -> DVec3 {
     (s[1] - s[0]).cross(s[2] - s[0]).normalize_or_zero()
 }
 
-/// Whether two mesh triangles (vertex ids `si`, `ti`, positions `s`, `t`; `ns` is s's
-/// [`unit_normal`], given since a new triangle is tested against dozens) overlap beyond what
+/// Whether two mesh triangles (vertex ids `si`, `ti`, positions `s`, `t`; `ns`, `nt` their
+/// [`unit_normal`]s, given since each triangle meets dozens of pair tests) overlap beyond what
 /// they share: a pair with no common vertex closer than [`TOUCH`]; a pair with a common edge
 /// folded flat onto itself; a pair with one common vertex whose far edges cross the other
 /// triangle, or, when coplanar, whose corners at that vertex overlap; the same triangle twice.
-pub fn conflict_with_normal(
+pub fn conflict_with_normals(
     si: [u32; 3],
     s: [DVec3; 3],
     ns: DVec3,
     ti: [u32; 3],
     t: [DVec3; 3],
+    nt: DVec3,
 ) -> bool {
     // Shared vertices as (index in s, index in t); a triangle's ids are distinct, so at most 3.
     let mut common = [(0usize, 0usize); 3];
@@ -157,7 +158,6 @@ pub fn conflict_with_normal(
             }
         }
     }
-    let nt = unit_normal(t);
     match shared {
         0 => {
             if apart(s, ns, &t) || apart(t, nt, &s) {
@@ -414,11 +414,6 @@ pub fn bounds(points: &[DVec3]) -> (DVec3, DVec3) {
 /// Whether two boxes (lo, hi) come within [`TOUCH`] of each other.
 pub fn bounds_meet((slo, shi): (DVec3, DVec3), (tlo, thi): (DVec3, DVec3)) -> bool {
     (slo - thi).max_element() <= TOUCH && (tlo - shi).max_element() <= TOUCH
-}
-
-/// Whether the bounding boxes of two point sets come within [`TOUCH`] of each other.
-pub fn boxes_meet(s: &[DVec3], t: &[DVec3]) -> bool {
-    bounds_meet(bounds(s), bounds(t))
 }
 
 #[cfg(test)]

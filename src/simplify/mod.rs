@@ -11,7 +11,7 @@
 //!   between the old and the new surface (`between`) or of the tetrahedra joining the old
 //!   triangles to the new vertex being within `sweep` < δ of an outside voxel's centre;
 //! - no self-intersection: new triangles are tested against the triangles near them (a spatial
-//!   hash) and each other, conservatively (`intersect::conflict_with_normal`);
+//!   hash) and each other, conservatively (`intersect::conflict_with_normals`);
 //! - topology: only edges with two faces whose endpoints are manifold and satisfy the link
 //!   condition collapse, so the mesh stays watertight and no fan is torn; no face may flip.
 //!
@@ -287,7 +287,7 @@ fn run_batches(
                     .map(|outcome| {
                         let plan = outcome?;
                         if !plan.in_plane {
-                            s.crosses_nothing(&mut scratch().seen, &plan)?;
+                            s.crosses_nothing(&mut scratch().crossing, &plan)?;
                         }
                         Ok(plan)
                     })
@@ -311,7 +311,7 @@ mod tests {
 
     use super::intersect::conflict;
     use super::region::Region;
-    use super::state::IdSet;
+    use super::region::IdSet;
     use super::*;
     use crate::mesh::classify::test_support::boxed;
     use crate::mesh::extract::extract;

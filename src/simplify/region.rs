@@ -16,7 +16,7 @@ use crate::mesh::classify::Classifier;
 pub(super) struct Scratch<'c> {
     /// Distance memo, sized for the voxels near the surface: about two per start triangle.
     pub(super) prox: Proximity<'c>,
-    pub(super) seen: IdSet,
+    pub(super) crossing: Crossing,
     pub(super) between: Between,
     /// The swept volume's pieces, when known: the sweep check then asks whether a collapse
     /// winds around one of them (`pieces`), else the region tests decide.
@@ -27,14 +27,31 @@ impl<'c> Scratch<'c> {
     pub(super) fn new(cls: &'c Classifier, pieces: Option<&'c Pieces>, triangles: usize) -> Self {
         Scratch {
             prox: Proximity::with_capacity(cls, 2 * triangles),
-            seen: IdSet::new(triangles),
+            crossing: Crossing {
+                seen: IdSet::new(triangles),
+                ..Crossing::default()
+            },
             between: Between::default(),
             pieces,
         }
     }
 }
 
+/// The self-intersection test's buffers (`State::crosses_nothing`), kept between checks.
+#[derive(Default)]
+pub(super) struct Crossing {
+    pub(super) seen: IdSet,
+    /// The new triangles' corners.
+    pub(super) points: Vec<DVec3>,
+    /// Ids the hash files near them.
+    pub(super) near: Vec<u32>,
+    /// The live triangles they are tested against, and the new ones.
+    pub(super) others: Vec<super::state::Facet>,
+    pub(super) fan: Vec<super::state::Facet>,
+}
+
 /// A set of triangle ids, one bit each (2 MB for 16 M triangles), empty between uses.
+#[derive(Default)]
 pub(super) struct IdSet(Vec<u64>);
 
 impl IdSet {

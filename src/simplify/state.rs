@@ -5,14 +5,12 @@ use std::collections::HashMap;
 
 use glam::DVec3;
 
-use super::intersect::{
-    bounds, bounds_meet, boxes_meet, conflict_with_normal, unit_normal, TriangleHash,
-};
+use super::intersect::{bounds, bounds_meet, conflict_with_normals, unit_normal, TriangleHash};
 use super::quadric::{cheapest, Quadric};
 use super::queue::{bucket, Candidate, Queue};
 // Scratch, IdSet, Plan and Reject live with the checks that make them (region.rs), which
 // import nothing from here.
-pub(super) use super::region::{IdSet, Plan, Region, Reject, Scratch};
+pub(super) use super::region::{Crossing, Plan, Region, Reject, Scratch};
 use super::{regrow, SimplifyStats, HASH_CELL};
 use crate::mesh::Mesh;
 
@@ -37,14 +35,30 @@ pub(super) struct State {
     pub(super) stats: SimplifyStats,
 }
 
-/// Whether triangle `t` (ids, places) conflicts with one of `others` ([`conflict`], boxes first).
-pub(super) fn meets_any<'a>(
-    t: &([u32; 3], [DVec3; 3]),
-    mut others: impl Iterator<Item = &'a ([u32; 3], [DVec3; 3])>,
-) -> bool {
-    let (ti, q) = t;
-    let n = unit_normal(*q);
-    others.any(|(ui, up)| boxes_meet(q, up) && conflict_with_normal(*ti, *q, n, *ui, *up))
+/// A triangle as the pair tests read it: ids, places, box and unit normal, each worked out once
+/// however many pairs it is in.
+pub(super) struct Facet {
+    ids: [u32; 3],
+    at: [DVec3; 3],
+    bounds: (DVec3, DVec3),
+    normal: DVec3,
+}
+
+impl Facet {
+    pub(super) fn new((ids, at): ([u32; 3], [DVec3; 3])) -> Self {
+        Facet {
+            ids,
+            at,
+            bounds: bounds(&at),
+            normal: unit_normal(at),
+        }
+    }
+
+    /// Whether the two conflict ([`conflict_with_normals`]), boxes first.
+    fn meets(&self, o: &Facet) -> bool {
+        bounds_meet(self.bounds, o.bounds)
+            && conflict_with_normals(self.ids, self.at, self.normal, o.ids, o.at, o.normal)
+    }
 }
 
 /// Parks rejected edge (a, b) under both endpoints, once.
@@ -216,26 +230,40 @@ impl State {
     /// each new triangle against the other live triangles near it, the other new ones (ids as
     /// after the collapse: b becomes a) and the unchanged ones. Reads the mesh as committed:
     /// the plans committed before this one in its batch are checked at its commit.
-    pub(super) fn crosses_nothing(&self, seen: &mut IdSet, plan: &Plan) -> Result<(), Reject> {
+    pub(super) fn crosses_nothing(&self, buf: &mut Crossing, plan: &Plan) -> Result<(), Reject> {
         let (new, unchanged, around) = (&plan.new, &plan.unchanged, &plan.around);
-        let fan: Vec<DVec3> = new.iter().flat_map(|(_, q)| *q).collect();
-        let fan_box = bounds(&fan);
-        let mut near = Vec::new();
-        self.hash.near(&fan, &mut near);
+        let Crossing {
+            seen,
+            points,
+            near,
+            others,
+            fan,
+        } = buf;
+        points.clear();
+        points.extend(new.iter().flat_map(|(_, q)| *q));
+        let fan_box = bounds(points);
+        self.hash.near(points, near);
         // Distinct ids first: the hash repeats a triangle once per cell it is filed under,
         // a large one hundreds of times.
-        seen.keep_first(&mut near);
-        let others: Vec<([u32; 3], [DVec3; 3])> = near
-            .iter()
-            .filter(|u| self.tri_alive[**u as usize] && around.binary_search(u).is_err())
-            .map(|&u| {
-                let ui = self.tris[u as usize];
-                (ui, ui.map(|x| self.pos[x as usize]))
-            })
-            .filter(|(_, up)| bounds_meet(fan_box, bounds(up)))
-            .collect();
-        for (k, t) in new.iter().enumerate() {
-            if meets_any(t, others.iter().chain(&new[k + 1..]).chain(unchanged)) {
+        seen.keep_first(near);
+        others.clear();
+        others.extend(
+            near.iter()
+                .filter(|u| self.tri_alive[**u as usize])
+                .filter_map(|&u| {
+                    let ui = self.tris[u as usize];
+                    let up = ui.map(|x| self.pos[x as usize]);
+                    // Most are too far: the box first, then whether it is around the edge.
+                    (bounds_meet(fan_box, bounds(&up)) && around.binary_search(&u).is_err())
+                        .then_some((ui, up))
+                })
+                .chain(unchanged.iter().copied())
+                .map(Facet::new),
+        );
+        fan.clear();
+        fan.extend(new.iter().copied().map(Facet::new));
+        for (k, t) in fan.iter().enumerate() {
+            if others.iter().chain(&fan[k + 1..]).any(|u| t.meets(u)) {
                 return Err(Reject::Intersection);
             }
         }
@@ -315,7 +343,12 @@ impl State {
             let places: Vec<DVec3> = new.iter().flat_map(|(_, q)| *q).collect();
             let fan = bounds(&places);
             for earlier in batch_moved.iter().filter(|m| bounds_meet(m.fan, fan)) {
-                if new.iter().any(|t| meets_any(t, earlier.tris.iter())) {
+                let theirs: Vec<Facet> = earlier.tris.iter().copied().map(Facet::new).collect();
+                let meets = |t: &([u32; 3], [DVec3; 3])| {
+                    let t = Facet::new(*t);
+                    theirs.iter().any(|u| t.meets(u))
+                };
+                if new.iter().any(meets) {
                     self.stats.rejected_intersection += 1;
                     return false;
                 }
