@@ -310,8 +310,8 @@ mod tests {
     use glam::DVec3;
 
     use super::intersect::conflict;
-    use super::region::Region;
     use super::region::IdSet;
+    use super::region::Region;
     use super::*;
     use crate::mesh::classify::test_support::boxed;
     use crate::mesh::extract::extract;
