@@ -174,7 +174,8 @@ struct VerifyArgs {
     /// of `run`'s hausdorff_bound).
     #[arg(long, value_enum, default_value_t = BoundScopeArg::Everywhere)]
     bound_scope: BoundScopeArg,
-    /// Finest covering radius of the samples, world units [default: mesh diagonal / 2000].
+    /// Covering radius of the samples, world units [default: mesh diagonal / 2000]; posed
+    /// pieces inside but nearer the mesh than that are split on down to 1/256 of it.
     #[arg(long, value_name = "S", allow_negative_numbers = true)]
     spacing: Option<f64>,
     /// Search on after the first posed triangle proven outside the mesh and count every

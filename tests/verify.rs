@@ -281,6 +281,43 @@ fn run_output_passes_and_broken_copies_fail_with_the_right_message() {
     assert!(r["deviation"]["bound"].as_f64().unwrap() > 3.0);
 }
 
+/// A tetrahedron whose apex comes within `clearance` of the top of a box around it, far from
+/// the box everywhere else: only the pieces at the apex come closer than the spacing, and they
+/// are split on below it. Certified when the clearance is an eighth of the spacing (as a swept
+/// volume at n = 1000 keeps from verify's default spacing where the generator comes nearest);
+/// too close below the finest radius, spacing / 256.
+#[test]
+fn a_clearance_far_below_the_spacing_at_one_point_is_certified() {
+    let dir = tempfile::tempdir().unwrap();
+    let apex = [0.25f32, 0.25, 0.5];
+    let v = vec![[0.0f32, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], apex];
+    let t = vec![[0u32, 2, 1], [0, 1, 3], [1, 2, 3], [2, 0, 3]];
+    let g = write(dir.path(), "tetra.glb", glb(&v, &t));
+    let csv = write(
+        dir.path(),
+        "still.csv",
+        "tx,ty,tz,qw,qx,qy,qz\n0,0,0,1,0,0,0\n",
+    );
+    let spacing = 0.004;
+    let sp = format!("{spacing}");
+    for (clearance, certified) in [(spacing / 8.0, true), (spacing / 1000.0, false)] {
+        let m = dir.path().join("around.glb");
+        let top = apex[2] as f64 + clearance;
+        let (v, t) = cuboid([-0.2, -0.2, -0.2], [1.2, 1.2, top]);
+        fs::write(&m, glb(&v, &t)).unwrap();
+        let (code, r) = verify_json(&g, &csv, &m, &["--spacing", &sp, "--motion", "discrete"]);
+        let f = failures(&r);
+        assert_eq!(code == 0, certified, "clearance {clearance}: {f}");
+        assert_eq!(r["containment"]["outside"], 0, "clearance {clearance}");
+        assert_eq!(
+            f.contains("too close to the mesh surface to certify down to covering radius"),
+            !certified,
+            "clearance {clearance}: {f}"
+        );
+        assert_eq!(r["containment"]["finest"].as_f64(), Some(spacing / 256.0));
+    }
+}
+
 /// A box [0, 0.5]×[0, 0.4]×[0, 0.3] pushed along x to 0.5 and 1: its swept volume is the box
 /// [0, 1.5]×[0, 0.4]×[0, 0.3].
 fn analytic(dir: &Path) -> (PathBuf, PathBuf) {
@@ -350,6 +387,20 @@ fn analytic_box_hull_clearance_and_deviation() {
         "{f}"
     );
     assert!(r["deviation"]["pockets"]["visible"].as_u64().unwrap() > 0);
+
+    // The hull enlarged by a clearance an eighth of the spacing over whole faces: certifying
+    // it needs pieces that small everywhere, which only a smaller --spacing asks for; the
+    // splits below the spacing run out and it fails as too close, with nothing outside.
+    let m = dir.path().join("hull+c.glb");
+    let c = spacing / 8.0;
+    let (v, t) = cuboid([-c, -c, -c], [1.5 + c, 0.4 + c, 0.3 + c]);
+    fs::write(&m, glb(&v, &t)).unwrap();
+    let (code, r) = verify_json(&g, &csv, &m, &["--spacing", &sp]);
+    assert_eq!(code, 3);
+    assert!(
+        failures(&r).contains("too close to the mesh surface to certify down to covering radius")
+    );
+    assert_eq!(r["containment"]["outside"], 0);
 
     // The exact hull: the generator's faces lie on it, so no clearance: not certified, and
     // nothing is outside either.

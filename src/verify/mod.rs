@@ -39,7 +39,7 @@ use pockets::Pockets;
 use poses::PosedPart;
 use winding::Winding;
 
-/// Default finest covering radius: this fraction of the mesh's bounding-box diagonal.
+/// Default covering radius: this fraction of the mesh's bounding-box diagonal.
 pub const DEFAULT_SPACING_FRACTION: f64 = 1.0 / 2000.0;
 /// `--spacing` is refused when covering the mesh at that radius could take more samples than
 /// this (about 10⁴ s at 10⁶ samples/s); the default spacing needs about 10⁷ on a sphere.
@@ -77,7 +77,8 @@ pub struct VerifyOptions {
     pub bound: Option<f64>,
     /// Where `bound` must hold.
     pub bound_scope: BoundScope,
-    /// Finest covering radius of the samples, world units [default: mesh diagonal / 2000].
+    /// Covering radius of the samples, world units [default: mesh diagonal / 2000] (posed pieces
+    /// nearer the mesh split on down to [`containment::finest`] of it).
     pub spacing: Option<f64>,
     /// Search on after the first posed triangle proven outside and count every failure
     /// (default: stop there, the certificate has failed).
@@ -111,8 +112,10 @@ pub struct Inputs {
 pub struct ContainmentReport {
     /// Every posed triangle certified inside with clearance, and the mesh closed.
     pub holds: bool,
-    /// Finest covering radius of the posed-triangle samples, world units.
+    /// Covering radius of the posed-triangle samples, world units (pieces nearer the mesh are
+    /// split on down to `finest`).
     pub spacing: f64,
+    pub finest: f64,
     #[serde(flatten)]
     pub result: Containment,
 }
@@ -339,10 +342,10 @@ pub fn verify(opts: &VerifyOptions, progress: &dyn Progress) -> anyhow::Result<R
     }
     if containment.too_close > 0 {
         failures.push(format!(
-            "containment: {} of {} posed triangles come too close to the mesh surface to certify at covering radius {}",
+            "containment: {} of {} posed triangles come too close to the mesh surface to certify down to covering radius {}",
             containment.too_close,
             containment.posed_triangles,
-            fmt_len(spacing)
+            fmt_len(containment::finest(spacing))
         ));
     }
     let within = opts.bound.map(|b| deviation.bound <= b);
@@ -409,6 +412,7 @@ pub fn verify(opts: &VerifyOptions, progress: &dyn Progress) -> anyhow::Result<R
         containment: ContainmentReport {
             holds,
             spacing,
+            finest: containment::finest(spacing),
             result: containment,
         },
         deviation: DeviationReport {

@@ -91,8 +91,9 @@ impl Report {
         };
         let r = &c.result;
         s += &format!(
-            "containment (generalized winding number >= 1/2 with clearance >= covering radius; finest covering radius {}): {} of {} posed triangles certified inside, {} with points outside, {} too close to certify ({} ball tests, {} winding numbers, {} outside samples, {} uncertain samples)\n",
+            "containment (generalized winding number >= 1/2 with clearance >= covering radius; covering radius {}, down to {} near the surface): {} of {} posed triangles certified inside, {} with points outside, {} too close to certify ({} ball tests, {} winding numbers, {} outside samples, {} uncertain samples)\n",
             fmt_len(c.spacing),
+            fmt_len(c.finest),
             r.certified,
             r.posed_triangles,
             r.outside,
