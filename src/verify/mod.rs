@@ -291,7 +291,8 @@ pub fn verify(opts: &VerifyOptions, progress: &dyn Progress) -> anyhow::Result<R
     let t4 = Instant::now();
 
     progress.stage("deviation (mesh triangles)", mesh.len() as u64);
-    let mut deviation = deviation::check(&parts, &mesh, spacing, progress);
+    let limit = opts.bound.map(|b| (b, motion.max_reach));
+    let mut deviation = deviation::check(&parts, &mesh, spacing, limit, progress);
     // Distances to the middle poses bound those to the motion from above (they are instants
     // of it); from below only up to their reach.
     deviation.lower = (deviation.lower - motion.max_reach).max(0.0);
@@ -300,7 +301,7 @@ pub fn verify(opts: &VerifyOptions, progress: &dyn Progress) -> anyhow::Result<R
     // Beyond the limit: are those places filled pockets (hidden from all six axes)?
     let pockets = opts.bound.filter(|b| deviation.bound > *b).map(|b| {
         progress.stage("pockets (mesh triangles beyond --bound)", mesh.len() as u64);
-        pockets::classify(&parts, &mesh, b, spacing, progress)
+        pockets::classify(&parts, &mesh, b, motion.max_reach, spacing, progress)
     });
     let t6 = Instant::now();
 
@@ -374,7 +375,7 @@ pub fn verify(opts: &VerifyOptions, progress: &dyn Progress) -> anyhow::Result<R
         }
         if let Some(v) = &p.first_visible {
             failures.push(format!(
-                "deviation: a mesh point beyond --bound {} sees out of the swept volume along an axis: {} from it at {} (mesh triangle {}), looking along {}; not a hidden pocket, so the bound of `run` is broken there",
+                "deviation: a mesh point beyond --bound {} sees out of the swept volume along an axis: at least {} from it at {} (mesh triangle {}), looking along {}; not a hidden pocket, so the bound of `run` is broken there",
                 fmt_len(b),
                 fmt_len(v.distance),
                 fmt_point(v.point),

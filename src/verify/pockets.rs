@@ -197,6 +197,7 @@ pub fn classify(
     parts: &[PosedPart],
     tris: &[[DVec3; 3]],
     bound: f64,
+    reach: f64,
     spacing: f64,
     progress: &dyn Progress,
 ) -> Pockets {
@@ -215,7 +216,7 @@ pub fn classify(
                 if stop.load(Ordering::Relaxed) {
                     break;
                 }
-                match settle(&tracer, s, &piece, bound, spacing, &mut out) {
+                match settle(&tracer, s, &piece, bound, reach, spacing, &mut out) {
                     Settled::Within => {}
                     Settled::Hidden => out.hidden += 1,
                     Settled::Visible(place) => {
@@ -258,12 +259,16 @@ enum Settled {
     Open,
 }
 
-/// Decide one piece (centre c, covering radius r).
+/// Decide one piece (centre c, covering radius r). `reach`: how far an instant of the motion
+/// may be from the posed surfaces (the middle poses' reach for screw motion, 0 for discrete):
+/// nearness to a posed surface is nearness to the swept volume, but farness from every posed
+/// surface proves farness from the swept volume only beyond the reach.
 fn settle(
     tracer: &Tracer,
     s: &mut Scratch,
     tri: &[DVec3; 3],
     bound: f64,
+    reach: f64,
     spacing: f64,
     out: &mut Pockets,
 ) -> Settled {
@@ -300,18 +305,19 @@ fn settle(
             return Settled::Hidden;
         }
     }
-    // A counterexample: c itself beyond B (exactly) with a ray that escapes.
+    // A counterexample: c itself beyond B (exactly, the motion's reach included) with a ray
+    // that escapes as far.
     if r <= spacing {
-        if let Some((dist, _)) = tracer.clear(s, c, bound, 0.0) {
+        if let Some((dist, _)) = tracer.clear(s, c, bound + reach, 0.0) {
             for (axis, sign, name) in DIRECTIONS {
-                let (ray, steps) = tracer.trace(s, c, axis, sign, bound, slack);
+                let (ray, steps) = tracer.trace(s, c, axis, sign, bound + reach, slack);
                 out.rays += 1;
                 out.steps += steps as u64;
                 if ray == Ray::Escapes {
                     return Settled::Visible(VisiblePlace {
                         point: c.to_array(),
                         mesh_triangle: 0,
-                        distance: dist,
+                        distance: dist - reach,
                         direction: name.to_string(),
                     });
                 }
@@ -340,13 +346,18 @@ mod tests {
 
     /// Classify one tiny mesh piece (radius ~1e-4) around `p` against `bound`.
     fn classify_at(parts: &[PosedPart], p: [f64; 3], bound: f64) -> Pockets {
+        classify_within(parts, p, bound, 0.0)
+    }
+
+    /// The same with posed surfaces that are instants of a motion up to `reach` apart.
+    fn classify_within(parts: &[PosedPart], p: [f64; 3], bound: f64, reach: f64) -> Pockets {
         let (p, e) = (DVec3::from(p), 1e-4);
         let piece = [
             p + DVec3::new(e, 0.0, 0.0),
             p + DVec3::new(-e, e, 0.0),
             p + DVec3::new(-e, -e, 0.0),
         ];
-        classify(parts, &[piece], bound, 1e-3, &Silent)
+        classify(parts, &[piece], bound, reach, 1e-3, &Silent)
     }
 
     #[test]
@@ -364,6 +375,15 @@ mod tests {
         assert_eq!(v.direction, "+x");
         assert!((v.distance - 2.0).abs() < 1e-3, "{v:?}");
         assert!(!p.holds());
+
+        // The same surfaces as middle poses of a motion whose instants may lie 1.5 nearer: 2 from
+        // them no longer proves the point farther than B = 1 from the swept volume; 0.5 does.
+        let p = classify_within(&parts, [6.0, 2.0, 2.0], 1.0, 1.5);
+        assert_eq!((p.hidden, p.visible), (0, 0), "{p:?}");
+        assert!(p.undetermined > 0 && !p.holds(), "{p:?}");
+        let p = classify_within(&parts, [6.0, 2.0, 2.0], 1.0, 0.5);
+        let v = p.first_visible.as_ref().expect("a visible place");
+        assert!((v.distance - 1.5).abs() < 1e-3, "{v:?}");
     }
 
     #[test]
