@@ -342,13 +342,10 @@ impl State {
         } else {
             let places: Vec<DVec3> = new.iter().flat_map(|(_, q)| *q).collect();
             let fan = bounds(&places);
+            let ours: Vec<Facet> = new.iter().copied().map(Facet::new).collect();
             for earlier in batch_moved.iter().filter(|m| bounds_meet(m.fan, fan)) {
                 let theirs: Vec<Facet> = earlier.tris.iter().copied().map(Facet::new).collect();
-                let meets = |t: &([u32; 3], [DVec3; 3])| {
-                    let t = Facet::new(*t);
-                    theirs.iter().any(|u| t.meets(u))
-                };
-                if new.iter().any(meets) {
+                if ours.iter().any(|t| theirs.iter().any(|u| t.meets(u))) {
                     self.stats.rejected_intersection += 1;
                     return false;
                 }

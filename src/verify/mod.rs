@@ -115,6 +115,7 @@ pub struct ContainmentReport {
     /// Covering radius of the posed-triangle samples, world units (pieces nearer the mesh are
     /// split on down to `finest`).
     pub spacing: f64,
+    /// The finest covering radius those pieces may reach ([`containment::finest`]).
     pub finest: f64,
     #[serde(flatten)]
     pub result: Containment,
