@@ -134,6 +134,32 @@ pub fn unit_normal(s: [DVec3; 3]) -> DVec3 {
     (s[1] - s[0]).cross(s[2] - s[0]).normalize_or_zero()
 }
 
+/// A triangle as the pair tests read it: ids, places, box and unit normal, each worked out once
+/// however many pairs it is in.
+pub struct Facet {
+    ids: [u32; 3],
+    at: [DVec3; 3],
+    bounds: (DVec3, DVec3),
+    normal: DVec3,
+}
+
+impl Facet {
+    pub fn new((ids, at): ([u32; 3], [DVec3; 3])) -> Self {
+        Facet {
+            ids,
+            at,
+            bounds: bounds(&at),
+            normal: unit_normal(at),
+        }
+    }
+
+    /// Whether the two conflict ([`conflict_with_normals`]), boxes first.
+    pub fn meets(&self, o: &Facet) -> bool {
+        bounds_meet(self.bounds, o.bounds)
+            && conflict_with_normals(self.ids, self.at, self.normal, o.ids, o.at, o.normal)
+    }
+}
+
 /// Whether two mesh triangles (vertex ids `si`, `ti`, positions `s`, `t`; `ns`, `nt` their
 /// [`unit_normal`]s, given since each triangle meets dozens of pair tests) overlap beyond what
 /// they share: a pair with no common vertex closer than [`TOUCH`]; a pair with a common edge

@@ -46,8 +46,8 @@ pub(super) struct Crossing {
     /// Ids the hash files near them.
     pub(super) near: Vec<u32>,
     /// The live triangles they are tested against, and the new ones.
-    pub(super) others: Vec<super::state::Facet>,
-    pub(super) fan: Vec<super::state::Facet>,
+    pub(super) others: Vec<super::intersect::Facet>,
+    pub(super) fan: Vec<super::intersect::Facet>,
 }
 
 /// A set of triangle ids, one bit each (2 MB for 16 M triangles), empty between uses.

@@ -5,7 +5,7 @@ use std::collections::HashMap;
 
 use glam::DVec3;
 
-use super::intersect::{bounds, bounds_meet, conflict_with_normals, unit_normal, TriangleHash};
+use super::intersect::{bounds, bounds_meet, Facet, TriangleHash};
 use super::quadric::{cheapest, Quadric};
 use super::queue::{bucket, Candidate, Queue};
 // Scratch, IdSet, Plan and Reject live with the checks that make them (region.rs), which
@@ -33,32 +33,6 @@ pub(super) struct State {
     pub(super) quadric: Vec<Quadric>,
     pub(super) live_tris: usize,
     pub(super) stats: SimplifyStats,
-}
-
-/// A triangle as the pair tests read it: ids, places, box and unit normal, each worked out once
-/// however many pairs it is in.
-pub(super) struct Facet {
-    ids: [u32; 3],
-    at: [DVec3; 3],
-    bounds: (DVec3, DVec3),
-    normal: DVec3,
-}
-
-impl Facet {
-    pub(super) fn new((ids, at): ([u32; 3], [DVec3; 3])) -> Self {
-        Facet {
-            ids,
-            at,
-            bounds: bounds(&at),
-            normal: unit_normal(at),
-        }
-    }
-
-    /// Whether the two conflict ([`conflict_with_normals`]), boxes first.
-    fn meets(&self, o: &Facet) -> bool {
-        bounds_meet(self.bounds, o.bounds)
-            && conflict_with_normals(self.ids, self.at, self.normal, o.ids, o.at, o.normal)
-    }
 }
 
 /// Parks rejected edge (a, b) under both endpoints, once.
