@@ -266,7 +266,7 @@ impl<'c> Proximity<'c> {
 
     /// Whether point `p` lies in the tolerance volume `tol`.
     pub fn point_within(&mut self, p: DVec3, tol: Tolerance) -> bool {
-        let near = self.nearest(p);
+        let near = self.nearest_centres(p);
         let (d_out, d_in) = near.centre_distances();
         tol.admits(d_out, d_in)
     }
@@ -293,6 +293,18 @@ impl<'c> Proximity<'c> {
     /// What [`Self::distance`] gives, with p's voxel and the other-class voxel whose centre is
     /// nearest to p (exact below [`CENTRE_REACH`]).
     pub(super) fn nearest(&mut self, p: DVec3) -> Near {
+        self.lookup::<true>(p)
+    }
+
+    /// [`Self::nearest`] without dist(p, ∂W), which the triangle test never reads: its `dist`
+    /// is 0, the least the distance could be.
+    fn nearest_centres(&mut self, p: DVec3) -> Near {
+        self.lookup::<false>(p)
+    }
+
+    /// [`Self::nearest`], with dist(p, ∂W) worked out when `BOUNDARY` (else 0).
+    #[inline(always)]
+    fn lookup<const BOUNDARY: bool>(&mut self, p: DVec3) -> Near {
         let v = p.floor();
         let home = [v.x as isize, v.y as isize, v.z as isize];
         let entry = self.entry(home);
@@ -314,7 +326,9 @@ impl<'c> Proximity<'c> {
         while bits != 0 {
             let [i, j, k] = BLOCK[bits.trailing_zeros() as usize].map(usize::from);
             bits &= bits - 1;
-            best = best.min(gx[i] + gy[j] + gz[k]);
+            if BOUNDARY {
+                best = best.min(gx[i] + gy[j] + gz[k]);
+            }
             let c2 = cx[i] + cy[j] + cz[k];
             if c2 < best_centre {
                 best_centre = c2;
@@ -322,7 +336,7 @@ impl<'c> Proximity<'c> {
             }
         }
         Near {
-            dist: best.sqrt(),
+            dist: if BOUNDARY { best.sqrt() } else { 0.0 },
             inside: entry >> INSIDE_BIT & 1 == 1,
             home,
             own_centre: (p - centre(home)).length(),
@@ -382,7 +396,7 @@ impl<'c> Proximity<'c> {
     /// lookup); otherwise it gets `judge(piece, R, nearest(c))`: pass, fail, or refine. A piece
     /// to refine with R < `r_min`, or more than [`NODE_BUDGET`] pieces in all, fails the
     /// region (not shown: always sound).
-    fn refine<const N: usize>(
+    fn refine<const N: usize, const BOUNDARY: bool>(
         &mut self,
         work: &mut Refinement<N>,
         start: [DVec3; N],
@@ -414,7 +428,7 @@ impl<'c> Proximity<'c> {
                 .map(|x| (*x - c).length_squared())
                 .fold(0.0, f64::max)
                 .sqrt();
-            let near = self.nearest(c);
+            let near = self.lookup::<BOUNDARY>(c);
             match judge(self, &piece, r, &near) {
                 Verdict::Pass => {}
                 Verdict::Fail => return false,
@@ -500,7 +514,7 @@ impl<'c> Proximity<'c> {
             ]);
         };
         let mut work = std::mem::take(&mut self.triangles);
-        let within = self.refine(&mut work, t, r_min, judge, inherited, split);
+        let within = self.refine::<3, false>(&mut work, t, r_min, judge, inherited, split);
         self.triangles = work;
         within
     }
@@ -553,7 +567,7 @@ impl<'c> Proximity<'c> {
             out.extend([left, right]);
         };
         let mut work = std::mem::take(&mut self.tetrahedra);
-        let shallow = self.refine(&mut work, t, r_min, judge, inherited, split);
+        let shallow = self.refine::<4, true>(&mut work, t, r_min, judge, inherited, split);
         self.tetrahedra = work;
         shallow
     }
