@@ -395,12 +395,16 @@ impl<'c> Proximity<'c> {
     /// parent's Near)` says so (the voxels found for its parent often serve it too, and cost no
     /// lookup); otherwise it gets `judge(piece, R, nearest(c))`: pass, fail, or refine. A piece
     /// to refine with R < `r_min`, or more than [`NODE_BUDGET`] pieces in all, fails the
-    /// region (not shown: always sound).
+    /// region (not shown: always sound). `bare(piece, R)` may give a verdict first, without a
+    /// lookup, where R alone rules out a pass on distances; a piece it refines hands its own
+    /// parent's Near on to its children.
+    #[allow(clippy::too_many_arguments)]
     fn refine<const N: usize, const BOUNDARY: bool>(
         &mut self,
         work: &mut Refinement<N>,
         start: [DVec3; N],
         r_min: f64,
+        bare: impl Fn(&Self, &[DVec3; N], f64) -> Option<Verdict>,
         mut judge: impl FnMut(&Self, &[DVec3; N], f64, &Near) -> Verdict,
         inherited: impl Fn(&[DVec3; N], &Near) -> bool,
         split: impl Fn(&[DVec3; N], &mut Vec<[DVec3; N]>),
@@ -428,6 +432,18 @@ impl<'c> Proximity<'c> {
                 .map(|x| (*x - c).length_squared())
                 .fold(0.0, f64::max)
                 .sqrt();
+            match bare(self, &piece, r) {
+                Some(Verdict::Pass) => continue,
+                Some(Verdict::Fail) => return false,
+                Some(Verdict::Refine) if r < r_min => return false,
+                Some(Verdict::Refine) => {
+                    children.clear();
+                    split(&piece, children);
+                    stack.extend(children.iter().map(|ch| (*ch, parent)));
+                    continue;
+                }
+                None => {}
+            }
             let near = self.lookup::<BOUNDARY>(c);
             match judge(self, &piece, r, &near) {
                 Verdict::Pass => {}
@@ -499,6 +515,19 @@ impl<'c> Proximity<'c> {
                 Verdict::Refine
             }
         };
+        // A piece whose corners lie within ρ of one point has R ≤ 4ρ/3 (each corner is a third
+        // of 2(p_i - o) - (p_j - o) - (p_k - o) from the centroid), so above 4/3 of the smaller
+        // radius neither the distance test nor the corner test can pass it: only flat on ∂W.
+        let large = 4.0 / 3.0 * tol.outside.min(tol.inside);
+        let bare = |me: &Self, piece: &[DVec3; 3], r: f64| {
+            (r > large).then(|| {
+                if me.on_boundary_plane(piece) {
+                    Verdict::Pass
+                } else {
+                    Verdict::Refine
+                }
+            })
+        };
         let inherited = |piece: &[DVec3; 3], parent: &Near| parent.hugged(piece, tol);
         let split = |t: &[DVec3; 3], out: &mut Vec<[DVec3; 3]>| {
             let m = [
@@ -514,7 +543,7 @@ impl<'c> Proximity<'c> {
             ]);
         };
         let mut work = std::mem::take(&mut self.triangles);
-        let within = self.refine::<3, false>(&mut work, t, r_min, judge, inherited, split);
+        let within = self.refine::<3, false>(&mut work, t, r_min, bare, judge, inherited, split);
         self.triangles = work;
         within
     }
@@ -567,7 +596,8 @@ impl<'c> Proximity<'c> {
             out.extend([left, right]);
         };
         let mut work = std::mem::take(&mut self.tetrahedra);
-        let shallow = self.refine::<4, true>(&mut work, t, r_min, judge, inherited, split);
+        let none = |_: &Self, _: &[DVec3; 4], _: f64| None;
+        let shallow = self.refine::<4, true>(&mut work, t, r_min, none, judge, inherited, split);
         self.tetrahedra = work;
         shallow
     }
