@@ -143,11 +143,9 @@ impl Region {
 
     /// v's neighbours, sorted (v = a or b).
     fn neighbours(&self, v: u32) -> Vec<u32> {
-        let mut out: Vec<u32> = self
-            .star(v)
-            .flat_map(|(_, tri)| *tri)
-            .filter(|&x| x != v)
-            .collect();
+        // Sized once: a collected filter would grow it two or three times.
+        let mut out = Vec::with_capacity(2 * self.tris.len());
+        out.extend(self.star(v).flat_map(|(_, tri)| *tri).filter(|&x| x != v));
         out.sort_unstable();
         out.dedup();
         out
@@ -215,12 +213,15 @@ impl Region {
     ) -> Result<Plan, Reject> {
         let (a, b) = (self.a, self.b);
         // Topology: a two-face edge between manifold vertices, and the link condition.
-        let on_edge: Vec<&(u32, [u32; 3])> =
-            self.star(a).filter(|(_, tri)| tri.contains(&b)).collect();
-        if on_edge.len() != 2 || !self.is_manifold(a) || !self.is_manifold(b) {
+        let mut on_edge = self.star(a).filter(|(_, tri)| tri.contains(&b));
+        let on_edge = match (on_edge.next(), on_edge.next(), on_edge.next()) {
+            (Some(s), Some(t), None) => [s, t],
+            _ => return Err(Reject::Topology),
+        };
+        if !self.is_manifold(a) || !self.is_manifold(b) {
             return Err(Reject::Topology);
         }
-        let shared: Vec<u32> = on_edge.iter().map(|(t, _)| *t).collect();
+        let shared = vec![on_edge[0].0, on_edge[1].0];
         let third = |tri: &[u32; 3]| *tri.iter().find(|&&x| x != a && x != b).expect("a third");
         let (c, d) = (third(&on_edge[0].1), third(&on_edge[1].1));
         let (na, nb) = (self.neighbours(a), self.neighbours(b));
@@ -238,7 +239,7 @@ impl Region {
 
         // The triangles around the edge before, and those that survive with a, b moved to v.
         let old: Vec<[DVec3; 3]> = self.tris.iter().map(|(_, tri)| self.places(*tri)).collect();
-        let mut survivors: Vec<Survivor> = Vec::new();
+        let mut survivors: Vec<Survivor> = Vec::with_capacity(self.tris.len());
         for ((t, tri), p) in self.tris.iter().zip(&old) {
             if shared.contains(t) {
                 continue;
@@ -267,32 +268,35 @@ impl Region {
         // Triangles of the kept endpoint's star that do not hold the other one stay where they
         // are when v is that endpoint: they are already within the band and cross nothing, so
         // only the moved ones are checked (against the unchanged ones too) and re-filed.
-        let (unchanged, changed): (Vec<_>, Vec<_>) =
-            survivors.into_iter().partition(|c| c.new == c.old);
-        let unchanged: Vec<([u32; 3], [DVec3; 3])> =
-            unchanged.iter().map(|c| (c.ids, c.new)).collect();
-        let new: Vec<([u32; 3], [DVec3; 3])> = changed.iter().map(|c| (c.ids, c.new)).collect();
+        let mut unchanged = Vec::with_capacity(survivors.len());
+        let mut changed = Vec::with_capacity(survivors.len());
+        let mut new = Vec::with_capacity(survivors.len());
+        for c in &survivors {
+            if c.new == c.old {
+                unchanged.push((c.ids, c.new));
+            } else {
+                changed.push((c.id, c.new));
+                new.push((c.ids, c.new));
+            }
+        }
         let in_plane = self.keeps_surface(v);
         if !in_plane {
             may_move(&new)?;
             // What the collapse takes away or moves, at its old places.
-            let swept: Vec<[DVec3; 3]> = self
-                .tris
-                .iter()
-                .zip(&old)
-                .filter(|((t, _), _)| shared.contains(t) || changed.iter().any(|c| c.id == *t))
-                .map(|(_, p)| *p)
-                .collect();
+            let mut swept: Vec<[DVec3; 3]> = Vec::with_capacity(old.len());
+            swept.extend(
+                self.tris
+                    .iter()
+                    .zip(&old)
+                    .filter(|((t, _), _)| shared.contains(t) || changed.iter().any(|c| c.0 == *t))
+                    .map(|(_, p)| *p),
+            );
             band_and_sweep(scratch, opts, v, &old, &swept, &new)?;
         }
         let (qa, qb) = (&self.vert(a).2, &self.vert(b).2);
         let qv = qa.add(qb);
-        let mut around_v: Vec<u32> = na
-            .iter()
-            .chain(&nb)
-            .copied()
-            .filter(|&x| x != a && x != b)
-            .collect();
+        let mut around_v: Vec<u32> = Vec::with_capacity(na.len() + nb.len());
+        around_v.extend(na.iter().chain(&nb).filter(|&&x| x != a && x != b));
         around_v.sort_unstable();
         around_v.dedup();
         let fresh = around_v
@@ -308,7 +312,7 @@ impl Region {
             v,
             shared,
             around: self.tris.iter().map(|(t, _)| *t).collect(),
-            changed: changed.iter().map(|c| (c.id, c.new)).collect(),
+            changed,
             new,
             unchanged,
             fresh,

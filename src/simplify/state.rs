@@ -190,7 +190,8 @@ impl State {
             .collect();
         tris.sort_unstable_by_key(|x| x.0);
         tris.dedup_by_key(|x| x.0);
-        let mut ids: Vec<u32> = tris.iter().flat_map(|x| x.1).collect();
+        let mut ids: Vec<u32> = Vec::with_capacity(3 * tris.len());
+        ids.extend(tris.iter().flat_map(|x| x.1));
         ids.sort_unstable();
         ids.dedup();
         let verts = ids
