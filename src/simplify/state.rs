@@ -340,7 +340,9 @@ impl State {
                 self.star[x as usize].retain(|&u| u != t);
             }
         }
-        let moved: Vec<u32> = self.star[b].clone();
+        // b is gone: its star's triangles join a's, and its own list is freed.
+        let moved = std::mem::take(&mut self.star[b]);
+        self.star[a].reserve(moved.len());
         for t in moved {
             for x in self.tris[t as usize].iter_mut() {
                 if *x as usize == b {
@@ -349,7 +351,6 @@ impl State {
             }
             self.star[a].push(t);
         }
-        self.star[b] = Vec::new(); // b is gone: free its star
         self.vert_alive[b] = false;
         self.pos[a] = v;
         let (tris, pos, alive) = (&self.tris, &self.pos, &self.tri_alive);
