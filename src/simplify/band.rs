@@ -501,6 +501,17 @@ impl<'c> Proximity<'c> {
 
     /// [`Self::triangle_within`], decided.
     fn refine_triangle(&mut self, t: [DVec3; 3], tol: Tolerance, r_min: f64) -> bool {
+        self.refine_triangle_splitting_above(t, tol, r_min, lookup_free_above(tol))
+    }
+
+    /// [`Self::refine_triangle`] with pieces of R above `large` split without a lookup.
+    fn refine_triangle_splitting_above(
+        &mut self,
+        t: [DVec3; 3],
+        tol: Tolerance,
+        r_min: f64,
+        large: f64,
+    ) -> bool {
         let flat_from = tol.outside.min(tol.inside) - HALF_DIAGONAL;
         let judge = |me: &Self, piece: &[DVec3; 3], r: f64, near: &Near| {
             let (d_out, d_in) = near.centre_distances();
@@ -515,10 +526,6 @@ impl<'c> Proximity<'c> {
                 Verdict::Refine
             }
         };
-        // A piece whose corners lie within ρ of one point has R ≤ 4ρ/3 (each corner is a third
-        // of 2(p_i - o) - (p_j - o) - (p_k - o) from the centroid), so above 4/3 of the smaller
-        // radius neither the distance test nor the corner test can pass it: only flat on ∂W.
-        let large = 4.0 / 3.0 * tol.outside.min(tol.inside);
         let bare = |me: &Self, piece: &[DVec3; 3], r: f64| {
             (r > large).then(|| {
                 if me.on_boundary_plane(piece) {
@@ -601,6 +608,14 @@ impl<'c> Proximity<'c> {
         self.tetrahedra = work;
         shallow
     }
+}
+
+/// The R above which a piece of the triangle test splits without a lookup. A piece whose corners
+/// lie within ρ of one point o has R ≤ 4ρ/3 about its centroid (each corner is a third of
+/// 2(p_i - o) - (p_j - o) - (p_k - o) from it), so above 4/3 of the smaller radius neither the
+/// distance test (R ≤ the radius) nor the corner test can pass it: only flat on ∂W can.
+fn lookup_free_above(tol: Tolerance) -> f64 {
+    4.0 / 3.0 * tol.outside.min(tol.inside)
 }
 
 /// What [`Proximity::nearest`] finds about a point p.
@@ -919,6 +934,56 @@ mod tests {
                 "{tol:?}: {accepted} accepted, {rejected} rejected"
             );
         }
+    }
+
+    /// Splitting large pieces without a lookup changes no verdict: on random voxel sets the
+    /// triangle test says the same with the rule and without it (a rule that passed a large
+    /// piece it should refine would accept what the full test rejects), on triangles large
+    /// enough for the rule to act. And the bound it rests on: corners within ρ of a point lie
+    /// within 4ρ/3 of their centroid, nearly reached by thin triangles.
+    #[test]
+    fn lookup_free_splits_change_no_verdict() {
+        let mut rnd = uniform(11);
+        let mut nearest_to_bound = 0.0f64;
+        for _ in 0..20_000 {
+            let on_sphere = |rnd: &mut dyn FnMut() -> f64| {
+                let d = DVec3::new(rnd() - 0.5, rnd() - 0.5, rnd() - 0.5).normalize_or_zero();
+                d * rnd().sqrt().sqrt()
+            };
+            let t: [DVec3; 3] = std::array::from_fn(|_| on_sphere(&mut rnd));
+            let c = (t[0] + t[1] + t[2]) / 3.0;
+            let r = t.iter().map(|p| (*p - c).length()).fold(0.0, f64::max);
+            assert!(r <= 4.0 / 3.0 + 1e-12, "{t:?}: R = {r}");
+            nearest_to_bound = nearest_to_bound.max(r);
+        }
+        assert!(nearest_to_bound > 1.2, "{nearest_to_bound}");
+        let mut large_ones = 0;
+        for tol in [
+            TOL,
+            Tolerance {
+                outside: 1.2,
+                inside: 1.9,
+            },
+        ] {
+            for seed in 0..3 {
+                let cls = random_at([14, 14, 14], seed);
+                let mut prox = Proximity::new(&cls);
+                let mut rnd = uniform(seed + 17);
+                for _ in 0..1500 {
+                    let c = DVec3::new(rnd(), rnd(), rnd()) * 14.0;
+                    let size = 0.2 + 4.0 * rnd();
+                    let t: [DVec3; 3] =
+                        std::array::from_fn(|_| c + (DVec3::new(rnd(), rnd(), rnd()) - 0.5) * size);
+                    let with_rule = prox.refine_triangle(t, tol, 0.05);
+                    let without = prox.refine_triangle_splitting_above(t, tol, 0.05, f64::INFINITY);
+                    assert_eq!(with_rule, without, "{tol:?}: {t:?}");
+                    let c = (t[0] + t[1] + t[2]) / 3.0;
+                    let r = t.iter().map(|p| (*p - c).length()).fold(0.0, f64::max);
+                    large_ones += (r > lookup_free_above(tol)) as usize;
+                }
+            }
+        }
+        assert!(large_ones > 500, "{large_ones}");
     }
 
     /// Random tetrahedra: whatever the test accepts has every sampled point within the limit of
