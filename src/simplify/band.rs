@@ -621,7 +621,8 @@ fn lookup_free_above(tol: Tolerance) -> f64 {
 /// What [`Proximity::nearest`] finds about a point p.
 #[derive(Clone, Copy)]
 pub(super) struct Near {
-    /// dist(p, ∂W) when below [`REACH`], else REACH.
+    /// dist(p, ∂W) when below [`REACH`], else REACH; 0 from the triangle test's lookups, which
+    /// leave it out (the least it could be).
     pub(super) dist: f64,
     /// Whether p's voxel is inside W.
     pub(super) inside: bool,
