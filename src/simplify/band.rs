@@ -740,6 +740,21 @@ mod tests {
     }
 
     /// Uniform numbers in [0, 1), reproducible from `seed`.
+    /// N corners drawn uniformly from the cube of edge `size` centred on `c`.
+    fn corners_around<const N: usize>(
+        c: DVec3,
+        size: f64,
+        rnd: &mut impl FnMut() -> f64,
+    ) -> [DVec3; N] {
+        std::array::from_fn(|_| c + (DVec3::new(rnd(), rnd(), rnd()) - 0.5) * size)
+    }
+
+    /// A triangle's circumradius about its centroid (the refinement's R).
+    fn centroid_radius(t: &[DVec3; 3]) -> f64 {
+        let c = (t[0] + t[1] + t[2]) / 3.0;
+        t.iter().map(|p| (*p - c).length()).fold(0.0, f64::max)
+    }
+
     fn uniform(seed: u64) -> impl FnMut() -> f64 {
         let mut rng = fastrand::Rng::with_seed(seed);
         move || rng.f64()
@@ -855,7 +870,7 @@ mod tests {
                 .map(|_| {
                     let c = DVec3::new(rnd(), rnd(), rnd()) * 16.0;
                     let size = 0.2 + 9.0 * rnd() * rnd();
-                    std::array::from_fn(|_| c + (DVec3::new(rnd(), rnd(), rnd()) - 0.5) * size)
+                    corners_around(c, size, &mut rnd)
                 })
                 .collect();
             for round in 0..2 {
@@ -910,8 +925,7 @@ mod tests {
                 for _ in 0..2000 {
                     let c = DVec3::new(rnd(), rnd(), rnd()) * 14.0;
                     let size = 0.2 + 3.0 * rnd();
-                    let t: [DVec3; 3] =
-                        std::array::from_fn(|_| c + (DVec3::new(rnd(), rnd(), rnd()) - 0.5) * size);
+                    let t: [DVec3; 3] = corners_around(c, size, &mut rnd);
                     if !prox.triangle_within(t, tol, 0.05) {
                         rejected += 1;
                         continue;
@@ -946,14 +960,14 @@ mod tests {
     fn lookup_free_splits_change_no_verdict() {
         let mut rnd = uniform(11);
         let mut nearest_to_bound = 0.0f64;
+        // Points of the unit ball, crowded towards its surface.
+        let in_ball = |rnd: &mut dyn FnMut() -> f64| {
+            let d = DVec3::new(rnd() - 0.5, rnd() - 0.5, rnd() - 0.5).normalize_or_zero();
+            d * rnd().sqrt().sqrt()
+        };
         for _ in 0..20_000 {
-            let on_sphere = |rnd: &mut dyn FnMut() -> f64| {
-                let d = DVec3::new(rnd() - 0.5, rnd() - 0.5, rnd() - 0.5).normalize_or_zero();
-                d * rnd().sqrt().sqrt()
-            };
-            let t: [DVec3; 3] = std::array::from_fn(|_| on_sphere(&mut rnd));
-            let c = (t[0] + t[1] + t[2]) / 3.0;
-            let r = t.iter().map(|p| (*p - c).length()).fold(0.0, f64::max);
+            let t: [DVec3; 3] = std::array::from_fn(|_| in_ball(&mut rnd));
+            let r = centroid_radius(&t);
             assert!(r <= 4.0 / 3.0 + 1e-12, "{t:?}: R = {r}");
             nearest_to_bound = nearest_to_bound.max(r);
         }
@@ -973,14 +987,11 @@ mod tests {
                 for _ in 0..1500 {
                     let c = DVec3::new(rnd(), rnd(), rnd()) * 14.0;
                     let size = 0.2 + 4.0 * rnd();
-                    let t: [DVec3; 3] =
-                        std::array::from_fn(|_| c + (DVec3::new(rnd(), rnd(), rnd()) - 0.5) * size);
+                    let t: [DVec3; 3] = corners_around(c, size, &mut rnd);
                     let with_rule = prox.refine_triangle(t, tol, 0.05);
                     let without = prox.refine_triangle_splitting_above(t, tol, 0.05, f64::INFINITY);
                     assert_eq!(with_rule, without, "{tol:?}: {t:?}");
-                    let c = (t[0] + t[1] + t[2]) / 3.0;
-                    let r = t.iter().map(|p| (*p - c).length()).fold(0.0, f64::max);
-                    large_ones += (r > lookup_free_above(tol)) as usize;
+                    large_ones += (centroid_radius(&t) > lookup_free_above(tol)) as usize;
                 }
             }
         }
@@ -999,8 +1010,7 @@ mod tests {
             for _ in 0..2000 {
                 let c = DVec3::splat(3.0) + DVec3::new(rnd(), rnd(), rnd()) * 14.0;
                 let size = 0.2 + 4.0 * rnd();
-                let t: [DVec3; 4] =
-                    std::array::from_fn(|_| c + (DVec3::new(rnd(), rnd(), rnd()) - 0.5) * size);
+                let t: [DVec3; 4] = corners_around(c, size, &mut rnd);
                 if !prox.tetrahedron_shallow(t, 2.3, 0.05) {
                     rejected += 1;
                     continue;
