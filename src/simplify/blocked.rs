@@ -26,6 +26,7 @@ use glam::DVec3;
 use rayon::prelude::*;
 
 use super::band::{pack_cell, KeyHasher};
+use super::discs;
 use super::pieces::Pieces;
 use super::quadric::Quadric;
 use super::queue::Queue;
@@ -188,8 +189,39 @@ fn simplify_block(
     let mut parked = HashMap::new();
     // Edges whose last outcome was the border rule.
     let mut border: HashSet<(u32, u32), BuildHasherDefault<KeyHasher>> = HashSet::default();
+    // The border rule, before the costly checks: every moved triangle's vertex locked or
+    // strictly inside the block's box.
+    let in_box = |moved: &[([u32; 3], [DVec3; 3])]| {
+        let off_box = moved.iter().any(|(ids, q)| {
+            ids.iter()
+                .zip(q)
+                .any(|(&x, &p)| !locked[x as usize] && !block.strictly_holds(p))
+        });
+        if off_box {
+            Err(Reject::Border)
+        } else {
+            Ok(())
+        }
+    };
     let mut tried = 0u32;
-    while let Some(c) = heap.pop() {
+    // Disc patches are remeshed once, when the collapses that keep the surface are done (the
+    // cost-0 FIFO first empties: docs/design.md, "Disc patches").
+    let mut discs_done = false;
+    loop {
+        if !discs_done && heap.zero.is_empty() {
+            discs_done = true;
+            discs::remesh_discs(
+                &mut s,
+                &mut heap,
+                &mut parked,
+                &mut scratch,
+                &opts,
+                &locked,
+                target,
+                in_box,
+            );
+        }
+        let Some(c) = heap.pop() else { break };
         if !s.is_current(&c) || !free(&c) {
             continue;
         }
@@ -198,20 +230,6 @@ fn simplify_block(
             break;
         }
         let region = s.region(c.a, c.b);
-        // The border rule, before the costly checks: every moved triangle's vertex locked or
-        // strictly inside the block's box.
-        let in_box = |moved: &[([u32; 3], [DVec3; 3])]| {
-            let off_box = moved.iter().any(|(ids, q)| {
-                ids.iter()
-                    .zip(q)
-                    .any(|(&x, &p)| !locked[x as usize] && !block.strictly_holds(p))
-            });
-            if off_box {
-                Err(Reject::Border)
-            } else {
-                Ok(())
-            }
-        };
         let outcome = region
             .check_moving(&mut scratch, &opts, region.target(), in_box)
             .and_then(|plan| {
@@ -320,6 +338,7 @@ mod tests {
     use crate::mesh::classify::test_support::random;
     use crate::mesh::manifold::Joined;
     use crate::simplify::band::HALF_DIAGONAL;
+    use crate::simplify::tests::{deep, in_volume, winding_number};
     use crate::simplify::Tolerance;
 
     fn opts() -> SimplifyOptions {
@@ -362,6 +381,60 @@ mod tests {
                 "seed {seed}: moving seam vertices went unnoticed"
             );
         }
+    }
+
+    /// Balls cut into small blocks, smooth enough for many discs to be remeshed at once
+    /// (`discs`): the welded mesh is a closed 2-manifold, every point sampled on it lies in the
+    /// tolerance volume, and it winds once around every voxel centre farther than the sweep
+    /// radius from the outside (what no step may sweep over). With the discs' band check
+    /// skipped, points of the output leave T here.
+    #[test]
+    fn discs_at_block_borders_weld_into_a_manifold() {
+        let mut discs = 0;
+        for (k, r) in [7.3f32, 8.6, 9.2].into_iter().enumerate() {
+            let c = [11.0 + 0.3 * k as f32, 10.6, 10.2];
+            let cls = crate::mesh::classify::test_support::from_ranges([24, 24, 24], |a, u, v| {
+                let (cu, rv) = (crate::depth::COLUMN_AXIS[a], crate::depth::ROW_AXIS[a]);
+                let d2 = (u - c[cu]).powi(2) + (v - c[rv]).powi(2);
+                (d2 < r * r).then(|| {
+                    let half = (r * r - d2).sqrt();
+                    (c[a] - half, c[a] + half)
+                })
+            });
+            let joined = Joined::new(&cls);
+            for size in [5, 7, 9] {
+                let out = simplify_boundary(&joined, &cls, None, opts(), size, &|| false).unwrap();
+                let defects = out.mesh.manifold_defects();
+                assert!(
+                    defects.is_manifold() && out.mesh.unpaired_edges().is_empty(),
+                    "ball {r}, blocks of {size}: {defects:?}"
+                );
+                discs += out.stats.discs;
+                let m = &out.mesh;
+                for t in &m.triangles {
+                    let p = t.map(|v| m.positions[v as usize]);
+                    for (a, b) in [(0.0, 0.0), (1.0 / 3.0, 1.0 / 3.0), (0.5, 0.25), (0.1, 0.6)] {
+                        let x = p[0] + (p[1] - p[0]) * a + (p[2] - p[0]) * b;
+                        assert!(
+                            in_volume(&cls, x, opts()),
+                            "ball {r}, blocks of {size}: {x} out of T"
+                        );
+                    }
+                }
+                for i in (0..24).step_by(2) {
+                    for j in 0..24 {
+                        for k in 0..24 {
+                            if deep(&cls, [i, j, k], opts()) {
+                                let c = DVec3::new(i as f64, j as f64, k as f64) + 0.5;
+                                let w = winding_number(m, c);
+                                assert!((w - 1.0).abs() < 1e-6, "ball {r}: winding {w} at {c}");
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        assert!(discs > 100, "only {discs} discs remeshed");
     }
 
     /// Small separate blobs (2 to 4 voxels wide), each with the points farther than the tolerance

@@ -37,6 +37,7 @@ pub(crate) mod band;
 mod batch;
 mod between;
 pub mod blocked;
+mod discs;
 pub(crate) mod intersect;
 pub mod pieces;
 mod quadric;
@@ -142,6 +143,11 @@ pub struct SimplifyStats {
     /// Collapses a block's pass left to the seam pass: they would have moved the surface onto
     /// the block's box (docs/design.md, "Blocks").
     pub deferred_at_block_border: u64,
+    /// Disc patches remeshed in one step (`discs`), and the vertices they removed.
+    #[serde(default)]
+    pub discs: u64,
+    #[serde(default)]
+    pub disc_vertices: u64,
 }
 
 impl SimplifyStats {
@@ -165,6 +171,8 @@ impl SimplifyStats {
         self.rejected_sweep += o.rejected_sweep;
         self.rejected_intersection += o.rejected_intersection;
         self.deferred_at_block_border += o.deferred_at_block_border;
+        self.discs += o.discs;
+        self.disc_vertices += o.disc_vertices;
     }
 }
 
@@ -376,21 +384,21 @@ mod tests {
     }
 
     /// Brute force: whether `p` lies in the tolerance volume of `opts`.
-    fn in_volume(cls: &Classifier, p: DVec3, opts: SimplifyOptions) -> bool {
+    pub(super) fn in_volume(cls: &Classifier, p: DVec3, opts: SimplifyOptions) -> bool {
         dist_to_centre(cls, p, false, opts.tolerance.outside).is_some()
             && dist_to_centre(cls, p, true, opts.tolerance.inside).is_some()
     }
 
     /// Whether voxel (i, j, k) is inside W and farther than `opts.sweep` from every outside
     /// voxel's centre: what no collapse may sweep over.
-    fn deep(cls: &Classifier, [i, j, k]: [isize; 3], opts: SimplifyOptions) -> bool {
+    pub(super) fn deep(cls: &Classifier, [i, j, k]: [isize; 3], opts: SimplifyOptions) -> bool {
         let c = DVec3::new(i as f64, j as f64, k as f64) + 0.5;
         cls.inside(i, j, k) && dist_to_centre(cls, c, false, opts.sweep).is_none()
     }
 
     /// Generalized winding number of a closed mesh at `p` (solid angles, Van Oosterom and
     /// Strackee).
-    fn winding_number(m: &Mesh, p: DVec3) -> f64 {
+    pub(super) fn winding_number(m: &Mesh, p: DVec3) -> f64 {
         let mut sum = 0.0;
         for t in &m.triangles {
             let [a, b, c] = t.map(|v| m.positions[v as usize] - p);

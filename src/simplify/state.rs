@@ -206,7 +206,19 @@ impl State {
     /// after the collapse: b becomes a) and the unchanged ones. Reads the mesh as committed:
     /// the plans committed before this one in its batch are checked at its commit.
     pub(super) fn crosses_nothing(&self, buf: &mut Crossing, plan: &Plan) -> Result<(), Reject> {
-        let (new, unchanged, around) = (&plan.new, &plan.unchanged, &plan.around);
+        self.crosses_nothing_of(buf, &plan.new, &plan.unchanged, &plan.around)
+    }
+
+    /// The same test for any replacement of the live triangles `around` (sorted) by `new` and
+    /// `unchanged` (ids as after it, places): each new triangle against the live triangles near
+    /// it but `around`, the unchanged ones and the new ones after it.
+    pub(super) fn crosses_nothing_of(
+        &self,
+        buf: &mut Crossing,
+        new: &[([u32; 3], [DVec3; 3])],
+        unchanged: &[([u32; 3], [DVec3; 3])],
+        around: &[u32],
+    ) -> Result<(), Reject> {
         let Crossing {
             seen,
             points,
