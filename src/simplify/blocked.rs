@@ -12,7 +12,9 @@
 //!   else the collapse is left to the seam pass). Other blocks' triangles lie in their own
 //!   boxes and likewise, so triangles of different blocks meet only at shared locked vertices
 //!   or along shared locked edges; each block's own self-intersection test covers the rest.
-//!   Collapses that keep the surface's point set move nothing and need no such rule.
+//!   Collapses that keep the surface's point set move nothing and need no such rule. A
+//!   remeshed disc (`discs`) follows the same rule and makes no new edge between two locked
+//!   vertices (one could lie on the box's face, where the next block's triangles are).
 //! - The tolerance and sweep checks are local to each collapse; a collapse's swept region lies
 //!   in its block's box, and the winding numbers it changes add up whatever the order.
 //!

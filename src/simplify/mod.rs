@@ -22,7 +22,9 @@
 //! each edge, `queue` holds the candidates cheapest first, `batch` draws up to `BATCH` (64) whose
 //! regions are disjoint from those in flight, `region` checks each on a copy of its region
 //! (topology, flips, band, sweep), `state` checks the survivors against the committed mesh
-//! (self-intersection) and commits them.
+//! (self-intersection) and commits them. The block by block simplifier (`blocked`) runs the same
+//! checks one candidate at a time per block, and once per block remeshes whole disc patches in
+//! one checked step (`discs`).
 
 use std::collections::HashMap;
 use std::sync::Mutex;
