@@ -49,6 +49,16 @@ pub(super) struct Remeshed {
     pub(super) point: Option<DVec3>,
 }
 
+impl Disc {
+    /// Its triangles' places in `s`.
+    fn places(&self, s: &State) -> Vec<[DVec3; 3]> {
+        self.tris
+            .iter()
+            .map(|&t| s.tris[t as usize].map(|x| s.pos[x as usize]))
+            .collect()
+    }
+}
+
 impl State {
     /// The triangles within `rings` rings of `v` when they form a disc with no locked vertex
     /// inside and none of them `taken`; else None.
@@ -253,11 +263,7 @@ impl State {
     /// moved triangles. Returns the vertices whose edges changed (boundary and point).
     pub(super) fn commit_disc(&mut self, plan: Remeshed) -> Vec<u32> {
         let Remeshed { disc, new, point } = plan;
-        let was: Vec<[DVec3; 3]> = disc
-            .tris
-            .iter()
-            .map(|&t| self.tris[t as usize].map(|x| self.pos[x as usize]))
-            .collect();
+        let was = disc.places(self);
         for &x in &disc.boundary {
             self.star[x as usize].retain(|t| disc.tris.binary_search(t).is_err());
         }
@@ -334,12 +340,7 @@ pub(super) fn check(
     {
         return Err(Reject::Band);
     }
-    let old: Vec<[DVec3; 3]> = plan
-        .disc
-        .tris
-        .iter()
-        .map(|&t| s.tris[t as usize].map(|x| s.pos[x as usize]))
-        .collect();
+    let old = plan.disc.places(s);
     let moved: Vec<[DVec3; 3]> = plan.new.iter().map(|(_, q)| *q).collect();
     // As for a collapse (`region::band_and_sweep`): with the pieces known, exactly; else every
     // point where old - new winds lies in a tetrahedron joining a triangle of old - new to one
@@ -598,6 +599,18 @@ mod tests {
         assert!(fans > 100 && ears > 100, "fans {fans}, ears {ears}");
     }
 
+    /// Every 2-ring disc of `s` that remeshes, with nothing locked or taken.
+    fn remeshed(s: &State) -> Vec<Remeshed> {
+        let locked = vec![false; s.pos.len()];
+        let taken = vec![false; s.tris.len()];
+        (0..s.pos.len() as u32)
+            .filter_map(|v| {
+                s.disc(v, RINGS, &locked, &taken)
+                    .and_then(|d| s.remesh(d, &locked))
+            })
+            .collect()
+    }
+
     /// A tolerance volume of radius 1.2 voxels, with the sweep radius `sweep`.
     fn narrow(sweep: f64) -> SimplifyOptions {
         SimplifyOptions {
@@ -630,27 +643,14 @@ mod tests {
             for (seed, cls) in shapes.enumerate() {
                 let s = State::new(crate::mesh::extract::extract(&cls));
                 let mut scratch = Scratch::new(&cls, None, s.tris.len());
-                let locked = vec![false; s.pos.len()];
-                let taken = vec![false; s.tris.len()];
-                for v in 0..s.pos.len() as u32 {
-                    let Some(plan) = s
-                        .disc(v, RINGS, &locked, &taken)
-                        .and_then(|d| s.remesh(d, &locked))
-                    else {
-                        continue;
-                    };
+                for plan in remeshed(&s) {
                     match check(&s, &mut scratch, &o, &plan, &|_| Ok(())) {
                         Err(Reject::Band) => band += 1,
                         Err(Reject::Sweep) => sweep += 1,
                         Err(_) => {}
                         Ok(()) => {
                             accepted += 1;
-                            let mut surface: Vec<[DVec3; 3]> = plan
-                                .disc
-                                .tris
-                                .iter()
-                                .map(|&t| s.tris[t as usize].map(|x| s.pos[x as usize]))
-                                .collect();
+                            let mut surface = plan.disc.places(&s);
                             for (_, q) in &plan.new {
                                 for i in 0..=4 {
                                     for j in 0..=4 - i {
@@ -701,24 +701,11 @@ mod tests {
             let cls = crate::mesh::classify::test_support::random([16, 16, 16], seed);
             let s = State::new(crate::mesh::extract::extract(&cls));
             let mut plain = Scratch::new(&cls, None, s.tris.len());
-            let locked = vec![false; s.pos.len()];
-            let taken = vec![false; s.tris.len()];
-            for v in 0..s.pos.len() as u32 {
-                let Some(plan) = s
-                    .disc(v, RINGS, &locked, &taken)
-                    .and_then(|d| s.remesh(d, &locked))
-                else {
-                    continue;
-                };
+            for plan in remeshed(&s) {
                 if check(&s, &mut plain, &o, &plan, &|_| Ok(())).is_err() {
                     continue;
                 }
-                let old: Vec<[DVec3; 3]> = plan
-                    .disc
-                    .tris
-                    .iter()
-                    .map(|&t| s.tris[t as usize].map(|x| s.pos[x as usize]))
-                    .collect();
+                let old = plan.disc.places(&s);
                 let mut surface = old.clone();
                 surface.extend(plan.new.iter().map(|(_, q)| [q[0], q[2], q[1]]));
                 // Between the removed centre vertex and the old triangles' centroids, off the
