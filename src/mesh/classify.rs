@@ -449,6 +449,19 @@ pub(crate) mod test_support {
         })
     }
 
+    /// The voxels of `dims` whose centres lie in the ball of radius `r` about `c` (the depth
+    /// images of a sphere).
+    pub fn ball(dims: [u32; 3], c: [f32; 3], r: f32) -> Classifier {
+        from_ranges(dims, |a, u, v| {
+            let (cu, rv) = (COLUMN_AXIS[a], ROW_AXIS[a]);
+            let d2 = (u - c[cu]).powi(2) + (v - c[rv]).powi(2);
+            (d2 < r * r).then(|| {
+                let half = (r * r - d2).sqrt();
+                (c[a] - half, c[a] + half)
+            })
+        })
+    }
+
     /// A classifier whose pixels get random depth ranges around the middle 60% of each axis
     /// (one in a hundred none): the inside set is a rough block with deep parts, tunnels and many
     /// concavities, random but reproducible from `seed`.

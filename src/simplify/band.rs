@@ -739,7 +739,6 @@ mod tests {
         v.iter().zip(w).map(|(p, w)| *p * (w / sum)).sum()
     }
 
-    /// Uniform numbers in [0, 1), reproducible from `seed`.
     /// N corners drawn uniformly from the cube of edge `size` centred on `c`.
     fn corners_around<const N: usize>(
         c: DVec3,
@@ -755,6 +754,7 @@ mod tests {
         t.iter().map(|p| (*p - c).length()).fold(0.0, f64::max)
     }
 
+    /// Uniform numbers in [0, 1), reproducible from `seed`.
     fn uniform(seed: u64) -> impl FnMut() -> f64 {
         let mut rng = fastrand::Rng::with_seed(seed);
         move || rng.f64()

@@ -395,14 +395,7 @@ mod tests {
         let mut discs = 0;
         for (k, r) in [7.3f32, 8.6, 9.2].into_iter().enumerate() {
             let c = [11.0 + 0.3 * k as f32, 10.6, 10.2];
-            let cls = crate::mesh::classify::test_support::from_ranges([24, 24, 24], |a, u, v| {
-                let (cu, rv) = (crate::depth::COLUMN_AXIS[a], crate::depth::ROW_AXIS[a]);
-                let d2 = (u - c[cu]).powi(2) + (v - c[rv]).powi(2);
-                (d2 < r * r).then(|| {
-                    let half = (r * r - d2).sqrt();
-                    (c[a] - half, c[a] + half)
-                })
-            });
+            let cls = crate::mesh::classify::test_support::ball([24, 24, 24], c, r);
             let joined = Joined::new(&cls);
             for size in [5, 7, 9] {
                 let out = simplify_boundary(&joined, &cls, None, opts(), size, &|| false).unwrap();

@@ -15,7 +15,6 @@ use std::collections::HashMap;
 
 use glam::{DVec2, DVec3};
 
-use super::band::Tolerance;
 use super::quadric::Quadric;
 use super::queue::Queue;
 use super::state::{Reject, Scratch, State};
@@ -104,19 +103,13 @@ impl State {
         edges.sort_unstable_by_key(|&(p, q)| (p.min(q), p.max(q), p));
         let mut boundary_edges: Vec<(u32, u32)> = Vec::new();
         let mut inner_edges = 0;
-        let mut i = 0;
-        while i < edges.len() {
-            let key = |e: (u32, u32)| (e.0.min(e.1), e.0.max(e.1));
-            let mut j = i + 1;
-            while j < edges.len() && key(edges[j]) == key(edges[i]) {
-                j += 1;
-            }
-            match j - i {
-                1 => boundary_edges.push(edges[i]),
-                2 if edges[i].0 != edges[i + 1].0 => inner_edges += 1,
+        let pair = |e: &(u32, u32)| (e.0.min(e.1), e.0.max(e.1));
+        for group in edges.chunk_by(|e, f| pair(e) == pair(f)) {
+            match group {
+                [e] => boundary_edges.push(*e),
+                [e, f] if e.0 != f.0 => inner_edges += 1,
                 _ => return None,
             }
-            i = j;
         }
         // One loop through every boundary vertex once, none of them inner.
         boundary_edges.sort_unstable();
@@ -169,21 +162,19 @@ impl State {
     pub(super) fn remesh(&self, disc: Disc, locked: &[bool]) -> Option<Remeshed> {
         let place = |t: u32| self.tris[t as usize].map(|x| self.pos[x as usize]);
         let normal = |q: &[DVec3; 3]| (q[1] - q[0]).cross(q[2] - q[0]);
-        let mut n = DVec3::ZERO;
-        let mut weighted = DVec3::ZERO;
+        // The area-weighted normal and centroid (twice the areas).
+        let (mut n, mut weighted, mut area2) = (DVec3::ZERO, DVec3::ZERO, 0.0);
+        let mut normals = Vec::with_capacity(disc.tris.len());
         for &t in &disc.tris {
             let q = place(t);
             let m = normal(&q);
             n += m;
+            area2 += m.length();
             weighted += m.length() * (q[0] + q[1] + q[2]);
+            normals.push(m);
         }
-        let area2 = disc
-            .tris
-            .iter()
-            .map(|&t| normal(&place(t)).length())
-            .sum::<f64>();
         let n = n.try_normalize()?;
-        if disc.tris.iter().any(|&t| normal(&place(t)).dot(n) <= 0.0) {
+        if normals.iter().any(|m| m.dot(n) <= 0.0) {
             return None;
         }
         let b: Vec<DVec3> = disc
@@ -330,7 +321,7 @@ pub(super) fn check(
 ) -> Result<(), Reject> {
     may_move(&plan.new)?;
     let prox = &mut scratch.prox;
-    let (tol, r_min): (Tolerance, f64) = (opts.tolerance, opts.min_radius);
+    let (tol, r_min) = (opts.tolerance, opts.min_radius);
     if plan.point.is_some_and(|c| !prox.point_within(c, tol))
         || plan.new.iter().any(|(_, q)| prox.probes_miss(q, tol))
         || !plan
@@ -426,11 +417,17 @@ pub(super) fn remesh_discs(
     }
 }
 
+/// Twice the signed area of triangle (a, b, c): positive when it turns counter-clockwise.
+fn orient(a: DVec2, b: DVec2, c: DVec2) -> f64 {
+    (b - a).perp_dot(c - a)
+}
+
 /// Whether the closed polygon `p` is simple: no two edges meet but consecutive ones at their
 /// shared corner (touching counts as meeting), and no corner turns straight back.
 fn is_simple(p: &[DVec2]) -> bool {
     let n = p.len();
-    let orient = |a: DVec2, b: DVec2, c: DVec2| (b - a).perp_dot(c - a);
+    // Strictly on one side: neither zero.
+    let apart = |x: f64, y: f64| (x > 0.0 && y > 0.0) || (x < 0.0 && y < 0.0);
     for i in 0..n {
         let (a, b) = (p[i], p[(i + 1) % n]);
         if a == b {
@@ -448,7 +445,6 @@ fn is_simple(p: &[DVec2]) -> bool {
             let (c, d) = (p[j], p[(j + 1) % n]);
             let (d1, d2) = (orient(a, b, c), orient(a, b, d));
             let (d3, d4) = (orient(c, d, a), orient(c, d, b));
-            let apart = |x: f64, y: f64| (x > 0.0 && y > 0.0) || (x < 0.0 && y < 0.0);
             if !apart(d1, d2) && !apart(d3, d4) {
                 return false;
             }
@@ -465,7 +461,6 @@ fn ears(p: &[DVec2]) -> Option<Vec<[usize; 3]>> {
     let mut prev: Vec<usize> = (0..n).map(|i| (i + n - 1) % n).collect();
     let mut next: Vec<usize> = (0..n).map(|i| (i + 1) % n).collect();
     let mut alive = vec![true; n];
-    let orient = |a: DVec2, b: DVec2, c: DVec2| (b - a).perp_dot(c - a);
     // The ear at i: its shape (4√3·area / Σ edge², 1 for equilateral) when it is one.
     let ear = |i: usize, prev: &[usize], next: &[usize], alive: &[bool]| -> Option<f64> {
         let (a, b, c) = (prev[i], i, next[i]);
@@ -492,7 +487,6 @@ fn ears(p: &[DVec2]) -> Option<Vec<[usize; 3]>> {
         let (i, _) = shape
             .iter()
             .enumerate()
-            .filter(|(i, _)| alive[*i])
             .filter_map(|(i, s)| s.map(|s| (i, s)))
             .fold(None, |best: Option<(usize, f64)>, (i, s)| match best {
                 Some((_, b)) if b >= s => best,
@@ -501,6 +495,7 @@ fn ears(p: &[DVec2]) -> Option<Vec<[usize; 3]>> {
         let (a, c) = (prev[i], next[i]);
         out.push([a, i, c]);
         alive[i] = false;
+        shape[i] = None;
         next[a] = c;
         prev[c] = a;
         shape[a] = ear(a, &prev, &next, &alive);
@@ -519,21 +514,9 @@ fn ears(p: &[DVec2]) -> Option<Vec<[usize; 3]>> {
 mod tests {
     use super::*;
     use crate::mesh::blocks::{blocks, extract_block};
-    use crate::mesh::classify::test_support::from_ranges;
+    use crate::mesh::classify::test_support::ball;
     use crate::mesh::manifold::Joined;
     use crate::simplify::band::Tolerance;
-
-    /// A ball of radius `r` about `c`, as voxels of a 24³ grid.
-    fn ball(c: [f32; 3], r: f32) -> crate::mesh::classify::Classifier {
-        from_ranges([24, 24, 24], |a, u, v| {
-            let (cu, rv) = (crate::depth::COLUMN_AXIS[a], crate::depth::ROW_AXIS[a]);
-            let d2 = (u - c[cu]).powi(2) + (v - c[rv]).powi(2);
-            (d2 < r * r).then(|| {
-                let half = (r * r - d2).sqrt();
-                (c[a] - half, c[a] + half)
-            })
-        })
-    }
 
     /// Over the discs of balls' block patches: every new edge is fresh (no live triangle outside
     /// the disc has it) and has an end that is not locked. Two locked ends may lie on the
@@ -544,7 +527,7 @@ mod tests {
     fn new_edges_are_fresh_and_never_join_two_locked_vertices() {
         let (mut fans, mut ears) = (0, 0);
         for (k, r) in [7.3f32, 8.6, 9.2].into_iter().enumerate() {
-            let cls = ball([11.0 + 0.3 * k as f32, 10.6, 10.2], r);
+            let cls = ball([24, 24, 24], [11.0 + 0.3 * k as f32, 10.6, 10.2], r);
             let joined = Joined::new(&cls);
             for size in [5, 7, 9] {
                 for b in blocks(crate::mesh::classify::VoxelSet::dims(&joined), size) {
@@ -639,7 +622,7 @@ mod tests {
         for o in [narrow(1.25), narrow(0.9)] {
             let shapes = (0..4)
                 .map(|seed| crate::mesh::classify::test_support::random([16, 16, 16], seed))
-                .chain([7.3, 8.6].map(|r| ball([11.2, 10.6, 10.2], r)));
+                .chain([7.3, 8.6].map(|r| ball([24, 24, 24], [11.2, 10.6, 10.2], r)));
             for (seed, cls) in shapes.enumerate() {
                 let s = State::new(crate::mesh::extract::extract(&cls));
                 let mut scratch = Scratch::new(&cls, None, s.tris.len());
