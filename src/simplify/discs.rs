@@ -724,4 +724,62 @@ mod tests {
         }
         assert!(found > 20, "only {found} discs with a point between");
     }
+
+    /// The self-intersection check, wired in: a disc that passes every check is refused
+    /// (Intersection) once a separate triangle pierces one of its new triangles, the rest of
+    /// the mesh unchanged. Without that check in `check` every such disc here would pass.
+    #[test]
+    fn a_disc_through_another_triangle_is_refused() {
+        let o = narrow(1.25);
+        let cls = ball([24, 24, 24], [11.2, 10.6, 10.2], 8.6);
+        let mesh = crate::mesh::extract::extract(&cls);
+        let s = State::new(mesh.clone());
+        let mut scratch = Scratch::new(&cls, None, s.tris.len());
+        let accepted: Vec<Remeshed> = remeshed(&s)
+            .into_iter()
+            .filter(|plan| check(&s, &mut scratch, &o, plan, &|_| Ok(())).is_ok())
+            .take(40)
+            .collect();
+        assert!(
+            accepted.len() >= 20,
+            "only {} discs accepted",
+            accepted.len()
+        );
+        for plan in &accepted {
+            // A needle through the largest new triangle's centroid, across its plane.
+            let area = |q: &[DVec3; 3]| (q[1] - q[0]).cross(q[2] - q[0]).length();
+            let q = (plan.new.iter().map(|(_, q)| *q))
+                .max_by(|a, b| area(a).total_cmp(&area(b)))
+                .expect("a new triangle");
+            let g = (q[0] + q[1] + q[2]) / 3.0;
+            let n = (q[1] - q[0]).cross(q[2] - q[0]).normalize();
+            let u = (q[1] - q[0]).normalize() * 0.05;
+            let mut pierced = mesh.clone();
+            let at = pierced.positions.len() as u32;
+            pierced
+                .positions
+                .extend([g + n * 0.3 + u, g - n * 0.3 + u, g + n * 0.3 - u]);
+            pierced.triangles.push([at, at + 1, at + 2]);
+            let t = State::new(pierced);
+            let mut scratch = Scratch::new(&cls, None, t.tris.len());
+            let again = t
+                .disc(
+                    plan.disc.centre,
+                    RINGS,
+                    &vec![false; t.pos.len()],
+                    &vec![false; t.tris.len()],
+                )
+                .and_then(|d| t.remesh(d, &vec![false; t.pos.len()]))
+                .expect("the same disc");
+            assert_eq!(again.new, plan.new);
+            assert!(
+                matches!(
+                    check(&t, &mut scratch, &o, &again, &|_| Ok(())),
+                    Err(Reject::Intersection)
+                ),
+                "a disc at {} passed through a needle",
+                plan.disc.centre
+            );
+        }
+    }
 }
