@@ -212,7 +212,7 @@ fn simplify_block(
     loop {
         if !discs_done && heap.zero.is_empty() {
             discs_done = true;
-            discs::remesh_discs(
+            let stopped = discs::remesh_discs(
                 &mut s,
                 &mut heap,
                 &mut parked,
@@ -221,7 +221,11 @@ fn simplify_block(
                 &locked,
                 target,
                 in_box,
+                stop,
             );
+            if stopped {
+                break;
+            }
         }
         let Some(c) = heap.pop() else { break };
         if !s.is_current(&c) || !free(&c) {

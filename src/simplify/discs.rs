@@ -358,7 +358,8 @@ pub(super) fn check(
 /// One pass of disc remeshing over the free vertices (`locked` false), in index order: the
 /// [`RINGS`]-ring disc at each is remeshed where it lies over a plane and passes the checks,
 /// until the mesh has at most `target` triangles (0: no target). The edges at the vertices a
-/// disc changes get fresh candidates in `heap` (both ends free) and leave `parked`.
+/// disc changes get fresh candidates in `heap` (both ends free) and leave `parked`. Asks
+/// `stop` every 1024 vertices; true when it said yes (the pass then ends where it was).
 #[allow(clippy::too_many_arguments)]
 pub(super) fn remesh_discs(
     s: &mut State,
@@ -369,14 +370,18 @@ pub(super) fn remesh_discs(
     locked: &[bool],
     target: usize,
     may_move: impl Fn(&[([u32; 3], [DVec3; 3])]) -> Result<(), Reject>,
-) {
+    stop: &(dyn Fn() -> bool + Sync),
+) -> bool {
     let mut taken = vec![false; s.tris.len()];
     // Vertices whose disc would hold a taken triangle (those of the new triangles and their
     // neighbours), skipped without gathering it.
     let mut near_taken = vec![false; s.pos.len()];
     for v in 0..s.pos.len() as u32 {
         if target > 0 && s.live_tris <= target {
-            return;
+            return false;
+        }
+        if v % 1024 == 0 && stop() {
+            return true;
         }
         if !s.vert_alive[v as usize] || locked[v as usize] || near_taken[v as usize] {
             continue;
@@ -415,6 +420,7 @@ pub(super) fn remesh_discs(
             }
         }
     }
+    false
 }
 
 /// Twice the signed area of triangle (a, b, c): positive when it turns counter-clockwise.
@@ -723,6 +729,34 @@ mod tests {
             }
         }
         assert!(found > 20, "only {found} discs with a point between");
+    }
+
+    /// A stop request ends the pass: asked at its first vertex, nothing is remeshed and it
+    /// says so; never asked to stop, the same pass remeshes discs.
+    #[test]
+    fn a_stop_request_ends_the_pass() {
+        let cls = ball([24, 24, 24], [11.2, 10.6, 10.2], 8.6);
+        let mesh = crate::mesh::extract::extract(&cls);
+        for stop in [true, false] {
+            let mut s = State::new(mesh.clone());
+            let mut scratch = Scratch::new(&cls, None, s.tris.len());
+            let (mut heap, mut parked) = (Queue::new(Vec::new()), HashMap::new());
+            let locked = vec![false; s.pos.len()];
+            let o = narrow(1.25);
+            let stopped = remesh_discs(
+                &mut s,
+                &mut heap,
+                &mut parked,
+                &mut scratch,
+                &o,
+                &locked,
+                0,
+                |_| Ok(()),
+                &|| stop,
+            );
+            assert_eq!(stopped, stop);
+            assert_eq!(s.stats.discs == 0, stop, "{} discs", s.stats.discs);
+        }
     }
 
     /// The self-intersection check, wired in: a disc that passes every check is refused
