@@ -6,6 +6,7 @@
 
 use glam::DVec3;
 
+use super::cover;
 use crate::mesh::classify::Classifier;
 
 /// Distances to ∂W are exact below this (the memo covers the 5×5×5 voxels around a point's
@@ -184,6 +185,11 @@ struct Verdict3 {
     r_min: f64,
     within: bool,
 }
+
+/// Pieces of R below this many times the smallest R are judged by [`Proximity::covered`]
+/// before they split: near T's edge the refinement would otherwise split on to the smallest R
+/// and reject a triangle that lies in T (docs/design.md, "The band test's last resort").
+const LAST_RESORT: f64 = 2.0;
 
 /// Nodes one region test may visit before it gives up (and rejects, which is always sound).
 const NODE_BUDGET: usize = 4096;
@@ -405,7 +411,7 @@ impl<'c> Proximity<'c> {
         start: [DVec3; N],
         r_min: f64,
         bare: impl Fn(&Self, &[DVec3; N], f64) -> Option<Verdict>,
-        mut judge: impl FnMut(&Self, &[DVec3; N], f64, &Near) -> Verdict,
+        mut judge: impl FnMut(&mut Self, &[DVec3; N], f64, &Near) -> Verdict,
         inherited: impl Fn(&[DVec3; N], &Near) -> bool,
         split: impl Fn(&[DVec3; N], &mut Vec<[DVec3; N]>),
     ) -> bool {
@@ -504,6 +510,31 @@ impl<'c> Proximity<'c> {
         self.refine_triangle_splitting_above(t, tol, r_min, lookup_free_above(tol))
     }
 
+    /// Whether every point of triangle `t` is within `tol.outside` of one of the outside centres
+    /// nearest to its corners and centroid (`at_centroid`), and within `tol.inside` of one of
+    /// the inside centres nearest to them ([`cover::within`], exact for those centres). The
+    /// nearest centres are a subset of all, which can only be nearer, so a yes is sound; a
+    /// corner with no other-class centre within [`CENTRE_REACH`] is out of T, a no.
+    fn covered(&mut self, t: &[DVec3; 3], at_centroid: &Near, tol: Tolerance) -> bool {
+        let (mut outside, mut inside) = ([DVec3::ZERO; 4], [DVec3::ZERO; 4]);
+        let (mut n_out, mut n_in) = (0, 0);
+        let corners = [t[0], t[1], t[2]].map(|p| self.nearest_centres(p));
+        for near in corners.iter().chain([at_centroid]) {
+            let Some((o, i)) = near.pair() else {
+                return false;
+            };
+            for (v, list, n) in [(o, &mut outside, &mut n_out), (i, &mut inside, &mut n_in)] {
+                let c = centre(v);
+                if !list[..*n].contains(&c) {
+                    list[*n] = c;
+                    *n += 1;
+                }
+            }
+        }
+        cover::within(t, &outside[..n_out], tol.outside)
+            && cover::within(t, &inside[..n_in], tol.inside)
+    }
+
     /// [`Self::refine_triangle`] with pieces of R above `large` split without a lookup.
     fn refine_triangle_splitting_above(
         &mut self,
@@ -513,7 +544,7 @@ impl<'c> Proximity<'c> {
         large: f64,
     ) -> bool {
         let flat_from = tol.outside.min(tol.inside) - HALF_DIAGONAL;
-        let judge = |me: &Self, piece: &[DVec3; 3], r: f64, near: &Near| {
+        let judge = |me: &mut Self, piece: &[DVec3; 3], r: f64, near: &Near| {
             let (d_out, d_in) = near.centre_distances();
             if tol.admits(d_out + r, d_in + r)
                 || near.hugged(piece, tol)
@@ -522,6 +553,8 @@ impl<'c> Proximity<'c> {
                 Verdict::Pass
             } else if !tol.admits(d_out, d_in) {
                 Verdict::Fail
+            } else if r < LAST_RESORT * r_min && me.covered(piece, near, tol) {
+                Verdict::Pass
             } else {
                 Verdict::Refine
             }
@@ -571,7 +604,7 @@ impl<'c> Proximity<'c> {
     /// accepts.
     pub fn tetrahedron_shallow(&mut self, t: [DVec3; 4], limit: f64, r_min: f64) -> bool {
         debug_assert!((HALF_DIAGONAL..CENTRE_REACH).contains(&limit) && r_min > 0.0);
-        let judge = |me: &Self, piece: &[DVec3; 4], r: f64, near: &Near| {
+        let judge = |me: &mut Self, piece: &[DVec3; 4], r: f64, near: &Near| {
             let (d_out, _) = near.centre_distances();
             if d_out + r <= limit
                 || (!near.inside && near.dist >= r)
@@ -854,6 +887,42 @@ mod tests {
             DVec3::new(1.2, 2.8, 4.15),
         ];
         assert!(prox.triangle_within(below, TOL, 0.05));
+    }
+
+    /// Over a flat wall (inside below z = 6) T is the slab |z - 6| ≤ √(r² - 1/2) - 1/2 (0.784
+    /// at r = 1.466, between four centres of a layer). A wide triangle at z = 6.78 lies in it
+    /// with 0.004 to spare, less than the smallest piece, so the refinement alone splits down
+    /// to it and rejects; the last resort decides it, and a sample of points agrees. At 6.79 a
+    /// point between four centres is out, and the triangle is refused. Without the last resort
+    /// the first assertion fails.
+    #[test]
+    fn a_triangle_near_the_slab_edge_is_decided_exactly() {
+        let cls = boxed_at([12, 12, 12], [0.0, 0.0, 0.0], [12.0, 12.0, 6.0]);
+        let tol = Tolerance {
+            outside: 1.466,
+            inside: 1.466,
+        };
+        let at = |z: f64| {
+            [
+                DVec3::new(3.2, 3.3, z),
+                DVec3::new(8.6, 3.7, z),
+                DVec3::new(4.1, 8.4, z),
+            ]
+        };
+        let sampled_in = |t: &[DVec3; 3]| {
+            let mut prox = Proximity::new(&cls);
+            (0..=60).all(|i| {
+                (0..=60 - i).all(|j| {
+                    let (a, b) = (i as f64 / 60.0, j as f64 / 60.0);
+                    prox.point_within(t[0] + (t[1] - t[0]) * a + (t[2] - t[0]) * b, tol)
+                })
+            })
+        };
+        let mut prox = Proximity::new(&cls);
+        assert!(sampled_in(&at(6.78)) && prox.triangle_within(at(6.78), tol, 0.05));
+        // (5, 5) lies between four centres of each layer, and in the triangle.
+        assert!(!prox.point_within(DVec3::new(5.0, 5.0, 6.79), tol));
+        assert!(!prox.triangle_within(at(6.79), tol, 0.05));
     }
 
     /// The two shortcuts of the triangle test answer what the refinement does: a kept verdict

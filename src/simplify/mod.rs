@@ -39,6 +39,7 @@ pub(crate) mod band;
 mod batch;
 mod between;
 pub mod blocked;
+mod cover;
 mod discs;
 pub(crate) mod intersect;
 pub mod pieces;
