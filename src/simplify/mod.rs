@@ -3,7 +3,8 @@
 //!
 //! - tolerance: every new triangle lies in the tolerance volume T, the points within
 //!   `tolerance.outside` of an outside voxel's centre and within `tolerance.inside` of an inside
-//!   one's (adaptive pieces with exact distances, `band::Proximity::triangle_within`), so it
+//!   one's (adaptive pieces with exact distances, `band::Proximity::triangle_within`; pieces near
+//!   T's edge by the Voronoi cells of their nearest centres, `cover`), so it
 //!   stays at least δ - outside from the swept volume and within inside + δ + μ + 2ρ of it;
 //! - sweep: no point of the swept volume changes its winding number: exactly, by the winding
 //!   number of the old and new triangles at one point of each of the swept volume's connected
