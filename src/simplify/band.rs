@@ -513,8 +513,8 @@ impl<'c> Proximity<'c> {
     /// Whether every point of triangle `t` is within `tol.outside` of one of the outside centres
     /// nearest to its corners and centroid (`at_centroid`), and within `tol.inside` of one of
     /// the inside centres nearest to them ([`cover::within`], exact for those centres). The
-    /// nearest centres are a subset of all, which can only be nearer, so a yes is sound; a
-    /// corner with no other-class centre within [`CENTRE_REACH`] is out of T, a no.
+    /// whole class is never farther than a few of its centres, so a yes is sound; a corner
+    /// with no other-class centre within [`CENTRE_REACH`] is out of T, a no.
     fn covered(&mut self, t: &[DVec3; 3], at_centroid: &Near, tol: Tolerance) -> bool {
         let (mut outside, mut inside) = ([DVec3::ZERO; 4], [DVec3::ZERO; 4]);
         let (mut n_out, mut n_in) = (0, 0);
