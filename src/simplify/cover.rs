@@ -1,6 +1,6 @@
 //! Whether a triangle lies within a radius of a few points (voxel centres): the exact maximum
 //! over the triangle of the distance to the nearest of them, taken over each point's Voronoi
-//! cell clipped to the triangle (docs/design.md, "The band test by Voronoi cells").
+//! cell clipped to the triangle (docs/design.md, "The band test's last resort").
 //!
 //! Units: grid units (one voxel edge = 1).
 
@@ -45,6 +45,7 @@ pub fn within(t: &[DVec3; 3], points: &[DVec3], radius: f64) -> bool {
         return false;
     }
     let (mut a, mut b) = ([DVec3::ZERO; 3 + MAX_POINTS], [DVec3::ZERO; 3 + MAX_POINTS]);
+    let mut side = [0.0; 3 + MAX_POINTS];
     for (j, &pj) in p.iter().enumerate() {
         // The whole triangle within pj's ball: so is its cell.
         if tri.iter().all(|x| (*x - pj).length_squared() <= limit) {
@@ -61,7 +62,6 @@ pub fn within(t: &[DVec3; 3], points: &[DVec3], radius: f64) -> bool {
             // towards pm.
             let (w, mid) = (pm - pj, (pm + pj) / 2.0);
             let slack = SLACK * w.length();
-            let mut side = [0.0; 3 + MAX_POINTS];
             let mut cut = 0;
             for k in 0..len {
                 side[k] = w.dot(poly[k] - mid) - slack;
@@ -134,7 +134,7 @@ mod tests {
         let (mut yes, mut no) = (0, 0);
         for _ in 0..3000 {
             let k = 1 + rng.usize(..MAX_POINTS);
-            let centres: Vec<DVec3> = (0..k)
+            let mut centres: Vec<DVec3> = (0..k)
                 .map(|_| {
                     DVec3::new(
                         rng.i32(0..4) as f64,
@@ -143,7 +143,6 @@ mod tests {
                     ) + 0.5
                 })
                 .collect();
-            let mut centres = centres;
             centres.sort_by(|a, b| a.to_array().partial_cmp(&b.to_array()).unwrap());
             centres.dedup();
             let t: [DVec3; 3] =

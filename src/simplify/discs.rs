@@ -796,14 +796,10 @@ mod tests {
             pierced.triangles.push([at, at + 1, at + 2]);
             let t = State::new(pierced);
             let mut scratch = Scratch::new(&cls, None, t.tris.len());
+            let (locked, taken) = (vec![false; t.pos.len()], vec![false; t.tris.len()]);
             let again = t
-                .disc(
-                    plan.disc.centre,
-                    RINGS,
-                    &vec![false; t.pos.len()],
-                    &vec![false; t.tris.len()],
-                )
-                .and_then(|d| t.remesh(d, &vec![false; t.pos.len()]))
+                .disc(plan.disc.centre, RINGS, &locked, &taken)
+                .and_then(|d| t.remesh(d, &locked))
                 .expect("the same disc");
             assert_eq!(again.new, plan.new);
             assert!(
