@@ -184,7 +184,8 @@ fn simplify_block(
             triangles_start,
         };
     }
-    let mut s = State::new(mesh);
+    // The triangle hash is made when the first check that moves the surface needs it.
+    let mut s = State::unfiled(mesh);
     let free = |c: &super::queue::Candidate| !locked[c.a as usize] && !locked[c.b as usize];
     let mut heap = Queue::new(all_edges(&s).into_iter().filter(free).collect());
     let mut scratch = Scratch::new(cls, pieces, s.tris.len());
@@ -240,6 +241,7 @@ fn simplify_block(
             .check_moving(&mut scratch, &opts, region.target(), in_box)
             .and_then(|plan| {
                 if !plan.in_plane {
+                    s.file();
                     s.crosses_nothing(&mut scratch.crossing, &plan)?;
                 }
                 Ok(plan)

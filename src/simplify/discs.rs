@@ -295,8 +295,12 @@ impl State {
         }
         let (tris, pos, alive) = (&self.tris, &self.pos, &self.tri_alive);
         let current = |u: u32| alive[u as usize].then(|| tris[u as usize].map(|x| pos[x as usize]));
+        let hash = self
+            .hash
+            .as_mut()
+            .expect("triangles filed before a disc moves them");
         for ((&t, (_, q)), w) in disc.tris.iter().zip(&new).zip(&was) {
-            self.hash.insert(t, q, Some(w), current);
+            hash.insert(t, q, Some(w), current);
         }
         let mut touched = disc.boundary;
         touched.extend(point.map(|_| disc.centre));
@@ -372,6 +376,8 @@ pub(super) fn remesh_discs(
     may_move: impl Fn(&[([u32; 3], [DVec3; 3])]) -> Result<(), Reject>,
     stop: &(dyn Fn() -> bool + Sync),
 ) -> bool {
+    // Each remeshed disc is checked for self-intersection, which reads the triangle hash.
+    s.file();
     let mut taken = vec![false; s.tris.len()];
     // Vertices whose disc would hold a taken triangle (those of the new triangles and their
     // neighbours), skipped without gathering it.

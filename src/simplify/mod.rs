@@ -638,6 +638,43 @@ mod tests {
         assert!(flat > 100 && crease > 100, "flat {flat}, crease {crease}");
     }
 
+    /// A block's pass files its triangles in the hash only after the collapses that keep the
+    /// surface (`State::unfiled`): filed then, every live triangle is found from its own
+    /// points, in its reshaped form, as the self-intersection checks assume.
+    #[test]
+    fn triangles_filed_after_in_plane_collapses_are_found() {
+        let cls = crate::mesh::classify::test_support::random([14, 14, 14], 7);
+        let mut s = State::unfiled(extract(&cls));
+        let mut scratch = Scratch::new(&cls, None, s.tris.len());
+        let mut collapsed = 0;
+        for t in 0..s.tris.len() {
+            if !s.tri_alive[t] {
+                continue;
+            }
+            let [a, b, _] = s.tris[t];
+            let region = s.region(a, b);
+            match region.check(&mut scratch, &defaults(), s.pos[a as usize]) {
+                Ok(plan) if plan.in_plane => {
+                    assert!(s.commit(plan, &mut Vec::new()));
+                    collapsed += 1;
+                }
+                _ => {}
+            }
+        }
+        assert!(collapsed > 50, "{collapsed} collapses in a plane");
+        s.file();
+        let hash = s.hash.as_ref().expect("filed");
+        let mut near = Vec::new();
+        for t in (0..s.tris.len()).filter(|&t| s.tri_alive[t]) {
+            let p = s.tris[t].map(|x| s.pos[x as usize]);
+            hash.near(&p, &mut near);
+            assert!(
+                near.contains(&(t as u32)),
+                "triangle {t} at {p:?} not filed"
+            );
+        }
+    }
+
     /// Batches in flight never share a vertex of their regions, and the first batch is full:
     /// three batches gathered back to back from a fresh block, each against the one before.
     #[test]

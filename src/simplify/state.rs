@@ -21,8 +21,9 @@ pub(super) struct Moved {
 }
 
 pub(super) struct State {
-    /// Every live triangle under the cells its current box meets (plus stale entries).
-    pub(super) hash: TriangleHash,
+    /// Every live triangle under the cells its current box meets (plus stale entries); None
+    /// until [`Self::file`] when made by [`Self::unfiled`].
+    pub(super) hash: Option<TriangleHash>,
     pub(super) pos: Vec<DVec3>,
     pub(super) tris: Vec<[u32; 3]>,
     pub(super) tri_alive: Vec<bool>,
@@ -51,13 +52,44 @@ impl State {
         Self::with_quadrics(mesh, None)
     }
 
+    /// [`Self::new`] without the triangle hash, which only the self-intersection checks read:
+    /// a block's pass first runs its collapses that keep the surface (more than half of all its
+    /// collapses), which never ask for it, so it files the triangles left after them
+    /// ([`Self::file`]) instead of filing every start triangle and then refiling each one such
+    /// a collapse reshapes.
+    pub(super) fn unfiled(mesh: Mesh) -> State {
+        Self::unfiled_with_quadrics(mesh, None)
+    }
+
+    /// Files every live triangle in the triangle hash, unless it is filed already.
+    pub(super) fn file(&mut self) {
+        if self.hash.is_some() {
+            return;
+        }
+        let mut hash = TriangleHash::new(HASH_CELL);
+        let (tris, pos) = (&self.tris, &self.pos);
+        let now = |u: u32| Some(tris[u as usize].map(|x| pos[x as usize]));
+        for t in (0..tris.len()).filter(|&t| self.tri_alive[t]) {
+            let p = tris[t].map(|x| pos[x as usize]);
+            hash.insert(t as u32, &p, None, now);
+        }
+        self.hash = Some(hash);
+    }
+
     /// [`Self::new`] with each vertex's quadric given (the sum of the planes of the start
     /// triangles it stands for), or made from `mesh`'s triangles when None.
     pub(super) fn with_quadrics(mesh: Mesh, quadrics: Option<Vec<Quadric>>) -> State {
+        let mut s = Self::unfiled_with_quadrics(mesh, quadrics);
+        s.file();
+        s
+    }
+
+    /// [`Self::with_quadrics`] without the triangle hash.
+    fn unfiled_with_quadrics(mesh: Mesh, quadrics: Option<Vec<Quadric>>) -> State {
         let n = mesh.positions.len();
         let t_count = mesh.triangles.len();
         let mut s = State {
-            hash: TriangleHash::new(HASH_CELL),
+            hash: None,
             pos: mesh.positions,
             tris: mesh.triangles,
             tri_alive: vec![true; t_count],
@@ -73,11 +105,7 @@ impl State {
         assert_eq!(s.quadric.len(), n, "a quadric per vertex");
         for t in 0..t_count {
             let tri = s.tris[t];
-            let (tris, pos) = (&s.tris, &s.pos);
-            let p = tri.map(|i| pos[i as usize]);
-            let start = |u: u32| Some(tris[u as usize].map(|x| pos[x as usize]));
-            s.hash.insert(t as u32, &p, None, start);
-            let q = (!given).then(|| Quadric::plane(p));
+            let q = (!given).then(|| Quadric::plane(tri.map(|i| s.pos[i as usize])));
             for &v in &tri {
                 s.star[v as usize].push(t as u32);
                 if let Some(q) = &q {
@@ -229,7 +257,9 @@ impl State {
         points.clear();
         points.extend(new.iter().flat_map(|(_, q)| *q));
         let fan_box = bounds(points);
-        self.hash.near(points, near);
+        let hash = self.hash.as_ref();
+        hash.expect("triangles filed before a check that moves the surface")
+            .near(points, near);
         // Distinct ids first: the hash repeats a triangle once per cell it is filed under,
         // a large one hundreds of times.
         seen.keep_first(near);
@@ -367,8 +397,10 @@ impl State {
         self.pos[a] = v;
         let (tris, pos, alive) = (&self.tris, &self.pos, &self.tri_alive);
         let current = |u: u32| alive[u as usize].then(|| tris[u as usize].map(|x| pos[x as usize]));
-        for ((t, q), w) in changed.iter().zip(&was) {
-            self.hash.insert(*t, q, Some(w), current);
+        if let Some(hash) = &mut self.hash {
+            for ((t, q), w) in changed.iter().zip(&was) {
+                hash.insert(*t, q, Some(w), current);
+            }
         }
         self.quadric[a] = self.quadric[a].add(&self.quadric[b]);
         self.version[a] += 1;
