@@ -397,10 +397,15 @@ impl State {
         self.pos[a] = v;
         let (tris, pos, alive) = (&self.tris, &self.pos, &self.tri_alive);
         let current = |u: u32| alive[u as usize].then(|| tris[u as usize].map(|x| pos[x as usize]));
-        if let Some(hash) = &mut self.hash {
-            for ((t, q), w) in changed.iter().zip(&was) {
-                hash.insert(*t, q, Some(w), current);
+        // Unfiled, only a collapse that keeps the surface can come here: one that moves it was
+        // checked against the filed triangles.
+        match &mut self.hash {
+            Some(hash) => {
+                for ((t, q), w) in changed.iter().zip(&was) {
+                    hash.insert(*t, q, Some(w), current);
+                }
             }
+            None => assert!(in_plane, "a moving collapse committed to an unfiled state"),
         }
         self.quadric[a] = self.quadric[a].add(&self.quadric[b]);
         self.version[a] += 1;
