@@ -257,8 +257,9 @@ impl State {
         points.clear();
         points.extend(new.iter().flat_map(|(_, q)| *q));
         let fan_box = bounds(points);
-        let hash = self.hash.as_ref();
-        hash.expect("triangles filed before a check that moves the surface")
+        self.hash
+            .as_ref()
+            .expect("triangles filed before a check that moves the surface")
             .near(points, near);
         // Distinct ids first: the hash repeats a triangle once per cell it is filed under,
         // a large one hundreds of times.
@@ -371,10 +372,14 @@ impl State {
         }
 
         // Apply: b merges into a at v.
-        let was: Vec<[DVec3; 3]> = changed
-            .iter()
-            .map(|(t, _)| self.tris[*t as usize].map(|x| self.pos[x as usize]))
-            .collect();
+        // The changed triangles' old places, for refiling them (none while unfiled).
+        let was: Vec<[DVec3; 3]> = match self.hash {
+            Some(_) => changed
+                .iter()
+                .map(|(t, _)| self.tris[*t as usize].map(|x| self.pos[x as usize]))
+                .collect(),
+            None => Vec::new(),
+        };
         for &t in &shared {
             self.tri_alive[t as usize] = false;
             self.live_tris -= 1;
