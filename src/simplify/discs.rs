@@ -17,7 +17,7 @@ use glam::{DVec2, DVec3};
 
 use super::quadric::Quadric;
 use super::queue::Queue;
-use super::state::{Reject, Scratch, State};
+use super::state::{Crossings, Reject, Scratch, State};
 use super::SimplifyOptions;
 
 /// The rings of a disc around its centre vertex. Two: at the first moving level (n = 256 and
@@ -295,12 +295,16 @@ impl State {
         }
         let (tris, pos, alive) = (&self.tris, &self.pos, &self.tri_alive);
         let current = |u: u32| alive[u as usize].then(|| tris[u as usize].map(|x| pos[x as usize]));
-        let hash = self
-            .hash
-            .as_mut()
-            .expect("triangles filed before a disc moves them");
-        for ((&t, (_, q)), w) in disc.tris.iter().zip(&new).zip(&was) {
-            hash.insert(t, q, Some(w), current);
+        match self.hash.as_mut() {
+            Some(hash) => {
+                for ((&t, (_, q)), w) in disc.tris.iter().zip(&new).zip(&was) {
+                    hash.insert(t, q, Some(w), current);
+                }
+            }
+            None => assert!(
+                self.crossings == Crossings::Neighbours,
+                "triangles filed before a disc moves them"
+            ),
         }
         let mut touched = disc.boundary;
         touched.extend(point.map(|_| disc.centre));
@@ -376,7 +380,8 @@ pub(super) fn remesh_discs(
     may_move: impl Fn(&[([u32; 3], [DVec3; 3])]) -> Result<(), Reject>,
     stop: &(dyn Fn() -> bool + Sync),
 ) -> bool {
-    // Each remeshed disc is checked for self-intersection, which reads the triangle hash.
+    // Each remeshed disc is checked for self-intersection, which reads the triangle hash
+    // (unless the pass checks neighbours only).
     s.file();
     let mut taken = vec![false; s.tris.len()];
     // Vertices whose disc would hold a taken triangle (those of the new triangles and their

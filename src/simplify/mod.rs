@@ -152,6 +152,10 @@ pub struct SimplifyStats {
     pub discs: u64,
     #[serde(default)]
     pub disc_vertices: u64,
+    /// Blocks whose pass, with crossings tested against the neighbours only, ended with a
+    /// crossing pair and was done again testing every near triangle (`blocked`).
+    #[serde(default)]
+    pub blocks_redone: u64,
 }
 
 impl SimplifyStats {
@@ -177,6 +181,7 @@ impl SimplifyStats {
         self.deferred_at_block_border += o.deferred_at_block_border;
         self.discs += o.discs;
         self.disc_vertices += o.disc_vertices;
+        self.blocks_redone += o.blocks_redone;
     }
 }
 

@@ -20,10 +20,26 @@ pub(super) struct Moved {
     pub(super) tris: Vec<([u32; 3], [DVec3; 3])>,
 }
 
+/// Which live triangles a step's new triangles are tested against for crossings
+/// (docs/design.md, "Self-intersection").
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum Crossings {
+    /// Every live triangle whose box comes near them (the triangle hash): each accepted step
+    /// keeps the mesh free of crossing pairs.
+    Near,
+    /// Only those that share a vertex with them, read from the stars: no hash is filed. The
+    /// pass's result must be certified ([`State::crossing_free`]), and the pass redone with
+    /// `Near` when it holds a crossing pair.
+    Neighbours,
+}
+
 pub(super) struct State {
     /// Every live triangle under the cells its current box meets (plus stale entries); None
-    /// until [`Self::file`] when made by [`Self::unfiled`].
+    /// until [`Self::file`] when made by [`Self::unfiled`], and always with
+    /// [`Crossings::Neighbours`].
     pub(super) hash: Option<TriangleHash>,
+    /// What a step's crossing test reads: `Near` unless a block's first pass says otherwise.
+    pub(super) crossings: Crossings,
     pub(super) pos: Vec<DVec3>,
     pub(super) tris: Vec<[u32; 3]>,
     pub(super) tri_alive: Vec<bool>,
@@ -61,11 +77,16 @@ impl State {
         Self::unfiled_with_quadrics(mesh, None)
     }
 
-    /// Files every live triangle in the triangle hash, unless it is filed already.
+    /// Files every live triangle in the triangle hash, unless it is filed already or the
+    /// checks read the stars only ([`Crossings::Neighbours`]).
     pub(super) fn file(&mut self) {
-        if self.hash.is_some() {
-            return;
+        if self.hash.is_none() && self.crossings == Crossings::Near {
+            self.hash = Some(self.filed());
         }
+    }
+
+    /// A triangle hash of the live triangles.
+    fn filed(&self) -> TriangleHash {
         let mut hash = TriangleHash::new(HASH_CELL);
         let (tris, pos) = (&self.tris, &self.pos);
         let now = |u: u32| Some(tris[u as usize].map(|x| pos[x as usize]));
@@ -73,7 +94,29 @@ impl State {
             let p = tris[t].map(|x| pos[x as usize]);
             hash.insert(t as u32, &p, None, now);
         }
-        self.hash = Some(hash);
+        hash
+    }
+
+    /// Whether no two live triangles conflict by the rules of the per-step test
+    /// ([`Facet::meets`]): the certificate of a pass with [`Crossings::Neighbours`]. Every pair
+    /// closer than the test's reach is found: a point of one within that reach of the other
+    /// lies in a cell the first is filed under and the second's widened box meets.
+    pub(super) fn crossing_free(&self) -> bool {
+        let hash = self.filed();
+        let place = |t: usize| self.tris[t].map(|x| self.pos[x as usize]);
+        let mut near = Vec::new();
+        (0..self.tris.len())
+            .filter(|&t| self.tri_alive[t])
+            .all(|t| {
+                let me = Facet::new((self.tris[t], place(t)));
+                hash.near(&place(t), &mut near);
+                near.sort_unstable();
+                near.dedup();
+                near.iter()
+                    .map(|&u| u as usize)
+                    .filter(|&u| u > t && self.tri_alive[u])
+                    .all(|u| !me.meets(&Facet::new((self.tris[u], place(u)))))
+            })
     }
 
     /// [`Self::new`] with each vertex's quadric given (the sum of the planes of the start
@@ -90,6 +133,7 @@ impl State {
         let t_count = mesh.triangles.len();
         let mut s = State {
             hash: None,
+            crossings: Crossings::Near,
             pos: mesh.positions,
             tris: mesh.triangles,
             tri_alive: vec![true; t_count],
@@ -257,10 +301,23 @@ impl State {
         points.clear();
         points.extend(new.iter().flat_map(|(_, q)| *q));
         let fan_box = bounds(points);
-        self.hash
-            .as_ref()
-            .expect("triangles filed before a check that moves the surface")
-            .near(points, near);
+        match self.crossings {
+            Crossings::Near => self
+                .hash
+                .as_ref()
+                .expect("triangles filed before a check that moves the surface")
+                .near(points, near),
+            Crossings::Neighbours => {
+                // After the change the triangles that share a vertex with the new ones are
+                // those of their vertices' stars but `around`, and `unchanged`.
+                near.clear();
+                for (ids, _) in new {
+                    for &x in ids {
+                        near.extend_from_slice(&self.star[x as usize]);
+                    }
+                }
+            }
+        }
         // Distinct ids first: the hash repeats a triangle once per cell it is filed under,
         // a large one hundreds of times.
         seen.keep_first(near);
@@ -410,7 +467,10 @@ impl State {
                     hash.insert(*t, q, Some(w), current);
                 }
             }
-            None => assert!(in_plane, "a moving collapse committed to an unfiled state"),
+            None => assert!(
+                in_plane || self.crossings == Crossings::Neighbours,
+                "a moving collapse committed to an unfiled state"
+            ),
         }
         self.quadric[a] = self.quadric[a].add(&self.quadric[b]);
         self.version[a] += 1;
