@@ -138,7 +138,7 @@ pub fn unit_normal(s: [DVec3; 3]) -> DVec3 {
 /// however many pairs it is in.
 pub struct Facet {
     ids: [u32; 3],
-    at: [DVec3; 3],
+    pub at: [DVec3; 3],
     bounds: (DVec3, DVec3),
     normal: DVec3,
 }

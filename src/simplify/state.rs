@@ -103,20 +103,25 @@ impl State {
     /// lies in a cell the first is filed under and the second's widened box meets.
     pub(super) fn crossing_free(&self) -> bool {
         let hash = self.filed();
-        let place = |t: usize| self.tris[t].map(|x| self.pos[x as usize]);
+        // Each live triangle's box and normal once, however many pairs it is in (indexed by
+        // `slot`: the state's arrays also hold the many triangles gone before).
+        let mut slot = vec![u32::MAX; self.tris.len()];
+        let mut facets = Vec::with_capacity(self.live_tris);
+        for t in (0..self.tris.len()).filter(|&t| self.tri_alive[t]) {
+            let ids = self.tris[t];
+            slot[t] = facets.len() as u32;
+            facets.push((t, Facet::new((ids, ids.map(|x| self.pos[x as usize])))));
+        }
         let mut near = Vec::new();
-        (0..self.tris.len())
-            .filter(|&t| self.tri_alive[t])
-            .all(|t| {
-                let me = Facet::new((self.tris[t], place(t)));
-                hash.near(&place(t), &mut near);
-                near.sort_unstable();
-                near.dedup();
-                near.iter()
-                    .map(|&u| u as usize)
-                    .filter(|&u| u > t && self.tri_alive[u])
-                    .all(|u| !me.meets(&Facet::new((self.tris[u], place(u)))))
-            })
+        facets.iter().all(|(t, me)| {
+            hash.near(&me.at, &mut near);
+            near.sort_unstable();
+            near.dedup();
+            near.iter()
+                .filter(|&&u| u as usize > *t && slot[u as usize] != u32::MAX)
+                .map(|&u| &facets[slot[u as usize] as usize].1)
+                .all(|other| !me.meets(other))
+        })
     }
 
     /// [`Self::new`] with each vertex's quadric given (the sum of the planes of the start
