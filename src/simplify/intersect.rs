@@ -153,6 +153,11 @@ impl Facet {
         }
     }
 
+    /// Whether the two have a vertex id in common.
+    pub fn shares_vertex(&self, o: &Facet) -> bool {
+        self.ids.iter().any(|x| o.ids.contains(x))
+    }
+
     /// Whether the two conflict ([`conflict_with_normals`]), boxes first.
     pub fn meets(&self, o: &Facet) -> bool {
         bounds_meet(self.bounds, o.bounds)
@@ -442,6 +447,91 @@ pub fn bounds_meet((slo, shi): (DVec3, DVec3), (tlo, thi): (DVec3, DVec3)) -> bo
     (slo - thi).max_element() <= TOUCH && (tlo - shi).max_element() <= TOUCH
 }
 
+/// Least cosine between a fan triangle's normal and the direction d of [`fan_one_to_one`]:
+/// nearer upright triangles leave the fan to the pair tests, and two neighbours of a fan that
+/// passes are never folded by [`conflict_with_normals`]'s measure (their normals then differ by
+/// at least 2·10⁻² rad, far beyond `FOLDED_COS`).
+const FAN_MIN_FACING: f64 = 1e-2;
+
+/// Most triangles around a vertex that [`fan_one_to_one`] judges (a larger fan: false).
+const FAN_MAX: usize = 32;
+
+/// Whether the triangles around a vertex at `x`, each given by its other two corners in the
+/// triangle's order (ids and places: (x, p, q)), form one closed fan that projects one to one
+/// along some direction d: every triangle faces d (cosine above [`FAN_MIN_FACING`]) and a ray
+/// from x across d lies in exactly one triangle's corner at x. d starts as the summed normal
+/// and turns towards the triangle that faces it least, a few times at most.
+///
+/// Then no two of them meet beyond what they share (docs/design.md, "Self-intersection"): the
+/// projected corners at x are convex (each triangle faces d) and cover every ray from x as
+/// often as the fan winds about x (a link with several cycles winds once per cycle), here
+/// once, so they tile the plane about x; two projections meet only on a shared ray, where
+/// each triangle's preimage is its own edge, so the triangles meet only along shared edges or
+/// at x. False for an open fan, one of fewer than three or more than [`FAN_MAX`] triangles,
+/// and where no d was found.
+pub fn fan_one_to_one(x: DVec3, fan: &[(u32, u32, DVec3, DVec3)]) -> bool {
+    if fan.len() < 3 || fan.len() > FAN_MAX {
+        return false;
+    }
+    // Closed: the far edges' starts are distinct and are their ends (a permutation).
+    for (i, &(p, ..)) in fan.iter().enumerate() {
+        let starts = fan[i + 1..].iter().filter(|f| f.0 == p).count();
+        let ends = fan.iter().filter(|f| f.1 == p).count();
+        if starts != 0 || ends != 1 {
+            return false;
+        }
+    }
+    let mut unit = [DVec3::ZERO; FAN_MAX];
+    let mut d = DVec3::ZERO;
+    for (k, &(_, _, p, q)) in fan.iter().enumerate() {
+        let n = (p - x).cross(q - x);
+        d += n;
+        unit[k] = n.normalize_or_zero();
+    }
+    let unit = &unit[..fan.len()];
+    for _ in 0..6 {
+        d = d.normalize_or_zero();
+        let worst = unit
+            .iter()
+            .copied()
+            .min_by(|m, n| m.dot(d).total_cmp(&n.dot(d)))
+            .unwrap_or_default();
+        if worst.dot(d) > FAN_MIN_FACING {
+            return covered_once(x, fan, d);
+        }
+        d += worst;
+    }
+    false
+}
+
+/// Whether one ray from x across unit `d` lies in exactly one of the fan's corners at x, each
+/// taken half-open [p - x, q - x) so that a ray along a shared edge counts once; with every
+/// corner convex about d, that count is the fan's winding number.
+fn covered_once(x: DVec3, fan: &[(u32, u32, DVec3, DVec3)], d: DVec3) -> bool {
+    // A ray off the lattice's directions, which a voxel mesh's edges often follow.
+    const SKEW: DVec3 = DVec3::new(0.577_215_664_9, 0.330_725_471_3, 0.751_125_544_4);
+    let u = d
+        .cross(SKEW)
+        .try_normalize()
+        .unwrap_or(d.any_orthonormal_vector());
+    // Each edge's side of the ray, the same sign in both corners it bounds; an edge within
+    // 10⁻⁹ of the ray's line leaves the fan to the pair tests, so that rounding (about 10⁻¹⁶
+    // of the edge) cannot change the count.
+    let side = |p: DVec3| {
+        let e = p - x;
+        let s = e.cross(u).dot(d);
+        (s.abs() > 1e-9 * e.length()).then_some(s > 0.0)
+    };
+    let mut covering = 0;
+    for &(_, _, p, q) in fan {
+        match (side(p), side(q)) {
+            (Some(after_start), Some(after_end)) => covering += (after_start && !after_end) as u32,
+            _ => return false,
+        }
+    }
+    covering == 1
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -494,6 +584,92 @@ mod tests {
             d <= by_samples + 1e-12 && d > by_samples - 0.02,
             "{d} vs {by_samples}"
         );
+    }
+
+    /// Random closed fans about the origin, winding once or twice, flat to steep, some with a
+    /// link vertex thrown far up or down: every fan [`fan_one_to_one`] passes has no pair of
+    /// triangles that conflict by the pair rules, no fan that winds twice passes, and most
+    /// gentle fans that wind once do (so the shortcut is worth having).
+    #[test]
+    fn fans_that_project_one_to_one_hold_no_conflicting_pair() {
+        let mut f = uniform(7);
+        let (mut gentle, mut gentle_passed, mut passed) = (0, 0, 0);
+        for case in 0..20_000 {
+            let winds = 1 + case % 2;
+            // Corners below π about z, so that the fan faces z and winds `winds` times.
+            let k = 2 * winds + 1 + (f() * 10.0) as usize;
+            let gaps: Vec<f64> = (0..k).map(|_| 0.2 + f()).collect();
+            let scale = std::f64::consts::TAU * winds as f64 / gaps.iter().sum::<f64>();
+            if gaps.iter().any(|g| g * scale > 3.1) {
+                continue;
+            }
+            let turns: Vec<f64> = gaps
+                .iter()
+                .scan(0.0, |at, g| {
+                    *at += g * scale;
+                    Some(*at)
+                })
+                .collect();
+            let height = [0.05, 0.5, 2.0][case / 2 % 3];
+            let thrown = (case / 6 % 4 == 0).then(|| (f() * k as f64) as usize);
+            let link: Vec<DVec3> = turns
+                .iter()
+                .enumerate()
+                .map(|(i, a)| {
+                    let r = 0.3 + 2.0 * f();
+                    let z = if thrown == Some(i) {
+                        8.0 * (f() - 0.5)
+                    } else {
+                        height * (f() - 0.5)
+                    };
+                    v(r * a.cos(), r * a.sin(), z)
+                })
+                .collect();
+            let fan: Vec<(u32, u32, DVec3, DVec3)> = (0..k)
+                .map(|i| {
+                    let j = (i + 1) % k;
+                    (i as u32 + 1, j as u32 + 1, link[i], link[j])
+                })
+                .collect();
+            let x = DVec3::ZERO;
+            let ok = fan_one_to_one(x, &fan);
+            if winds == 1 && height < 1.0 && thrown.is_none() && k >= 4 {
+                gentle += 1;
+                gentle_passed += ok as u32;
+            }
+            if !ok {
+                continue;
+            }
+            passed += 1;
+            assert_eq!(winds, 1, "case {case}: a fan winding twice passed");
+            let tri = |(p, q, a, b): (u32, u32, DVec3, DVec3)| ([0, p, q], [x, a, b]);
+            for i in 0..k {
+                for j in i + 1..k {
+                    let ((si, sp), (ti, tp)) = (tri(fan[i]), tri(fan[j]));
+                    assert!(
+                        !conflict(si, sp, ti, tp),
+                        "case {case}: triangles {i} and {j} conflict"
+                    );
+                }
+            }
+        }
+        assert!(
+            gentle_passed * 10 > gentle * 9,
+            "{gentle_passed} of {gentle} gentle fans passed"
+        );
+        assert!(passed > 4000, "{passed} fans passed");
+        // An open fan (one triangle dropped) never passes.
+        let link = [
+            v(1.0, 0.0, 0.0),
+            v(0.0, 1.0, 0.1),
+            v(-1.0, 0.0, 0.0),
+            v(0.0, -1.0, 0.1),
+        ];
+        let closed: Vec<_> = (0..4)
+            .map(|i| (i as u32, (i as u32 + 1) % 4, link[i], link[(i + 1) % 4]))
+            .collect();
+        assert!(fan_one_to_one(DVec3::ZERO, &closed));
+        assert!(!fan_one_to_one(DVec3::ZERO, &closed[..3]));
     }
 
     #[test]

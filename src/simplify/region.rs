@@ -48,6 +48,10 @@ pub(super) struct Crossing {
     /// The live triangles they are tested against, and the new ones.
     pub(super) others: Vec<super::intersect::Facet>,
     pub(super) fan: Vec<super::intersect::Facet>,
+    /// The new triangles' vertices, and one vertex's fan after the change
+    /// (`State::fans_one_to_one`).
+    pub(super) verts: Vec<u32>,
+    pub(super) corners: Vec<(u32, u32, DVec3, DVec3)>,
 }
 
 /// A set of triangle ids, one bit each (2 MB for 16 M triangles), empty between uses.

@@ -5,7 +5,7 @@ use std::collections::HashMap;
 
 use glam::DVec3;
 
-use super::intersect::{bounds, bounds_meet, Facet, TriangleHash};
+use super::intersect::{bounds, bounds_meet, fan_one_to_one, Facet, TriangleHash};
 use super::quadric::{cheapest, Quadric};
 use super::queue::{bucket, Candidate, Queue};
 // Scratch, IdSet, Plan and Reject live with the checks that make them (region.rs), which
@@ -286,9 +286,51 @@ impl State {
         self.crosses_nothing_of(buf, &plan.new, &plan.unchanged, &plan.around)
     }
 
+    /// Whether, after replacing `around` by `new` and `unchanged`, the fan of every vertex of
+    /// the new triangles projects one to one ([`fan_one_to_one`]). Then no two triangles with a
+    /// common vertex among them meet beyond what they share. (The pair rules also flag such
+    /// pairs within 10⁻⁶ of touching; a block's certificate still tests those.)
+    fn fans_one_to_one(
+        &self,
+        buf: &mut Crossing,
+        new: &[([u32; 3], [DVec3; 3])],
+        unchanged: &[([u32; 3], [DVec3; 3])],
+        around: &[u32],
+    ) -> bool {
+        let Crossing { verts, corners, .. } = buf;
+        verts.clear();
+        verts.extend(new.iter().flat_map(|(ids, _)| *ids));
+        verts.sort_unstable();
+        verts.dedup();
+        verts.iter().all(|&x| {
+            corners.clear();
+            let mut at = None;
+            for (ids, q) in new.iter().chain(unchanged) {
+                if let Some(k) = ids.iter().position(|&y| y == x) {
+                    let (i, j) = ((k + 1) % 3, (k + 2) % 3);
+                    corners.push((ids[i], ids[j], q[i], q[j]));
+                    at = Some(q[k]);
+                }
+            }
+            for &t in &self.star[x as usize] {
+                if !self.tri_alive[t as usize] || around.binary_search(&t).is_ok() {
+                    continue;
+                }
+                let ids = self.tris[t as usize];
+                let k = ids.iter().position(|&y| y == x).expect("a star's vertex");
+                let (i, j) = (ids[(k + 1) % 3], ids[(k + 2) % 3]);
+                corners.push((i, j, self.pos[i as usize], self.pos[j as usize]));
+            }
+            at.is_some_and(|p| fan_one_to_one(p, corners))
+        })
+    }
+
     /// The same test for any replacement of the live triangles `around` (sorted) by `new` and
     /// `unchanged` (ids as after it, places): each new triangle against the live triangles near
-    /// it but `around`, the unchanged ones and the new ones after it.
+    /// it but `around`, the unchanged ones and the new ones after it. Where the fans of the new
+    /// triangles' vertices project one to one ([`Self::fans_one_to_one`]) only the pairs
+    /// without a common vertex are tested: with crossings read from the neighbours, only new
+    /// ones (a collapse's all hold the kept vertex, so none).
     pub(super) fn crosses_nothing_of(
         &self,
         buf: &mut Crossing,
@@ -296,12 +338,14 @@ impl State {
         unchanged: &[([u32; 3], [DVec3; 3])],
         around: &[u32],
     ) -> Result<(), Reject> {
+        let fans = self.fans_one_to_one(buf, new, unchanged, around);
         let Crossing {
             seen,
             points,
             near,
             others,
             fan,
+            ..
         } = buf;
         points.clear();
         points.extend(new.iter().flat_map(|(_, q)| *q));
@@ -316,7 +360,7 @@ impl State {
                 // After the change the triangles that share a vertex with the new ones are
                 // those of their vertices' stars but `around`, and `unchanged`.
                 near.clear();
-                for (ids, _) in new {
+                for (ids, _) in new.iter().filter(|_| !fans) {
                     for &x in ids {
                         near.extend_from_slice(&self.star[x as usize]);
                     }
@@ -337,13 +381,19 @@ impl State {
                     (bounds_meet(fan_box, bounds(&up)) && around.binary_search(&u).is_err())
                         .then_some((ui, up))
                 })
-                .chain(unchanged.iter().copied())
+                .chain(unchanged.iter().copied().filter(|_| !fans))
                 .map(Facet::new),
         );
         fan.clear();
         fan.extend(new.iter().copied().map(Facet::new));
         for (k, t) in fan.iter().enumerate() {
-            if others.iter().chain(&fan[k + 1..]).any(|u| t.meets(u)) {
+            let mut pairs = others.iter().chain(&fan[k + 1..]);
+            let crossed = if fans {
+                pairs.any(|u| !t.shares_vertex(u) && t.meets(u))
+            } else {
+                pairs.any(|u| t.meets(u))
+            };
+            if crossed {
                 return Err(Reject::Intersection);
             }
         }
