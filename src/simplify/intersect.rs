@@ -153,9 +153,11 @@ impl Facet {
         }
     }
 
-    /// Whether the two have a vertex id in common.
-    pub fn shares_vertex(&self, o: &Facet) -> bool {
-        self.ids.iter().any(|x| o.ids.contains(x))
+    /// Whether the two have a vertex id in common that `set` (sorted) holds.
+    pub fn shares_one_of(&self, o: &Facet, set: &[u32]) -> bool {
+        self.ids
+            .iter()
+            .any(|x| o.ids.contains(x) && set.binary_search(x).is_ok())
     }
 
     /// Whether the two conflict ([`conflict_with_normals`]), boxes first.

@@ -48,10 +48,11 @@ pub(super) struct Crossing {
     /// The live triangles they are tested against, and the new ones.
     pub(super) others: Vec<super::intersect::Facet>,
     pub(super) fan: Vec<super::intersect::Facet>,
-    /// The new triangles' vertices, and one vertex's fan after the change
-    /// (`State::fans_one_to_one`).
+    /// The new triangles' vertices, one vertex's fan after the change, and the vertices whose
+    /// fans project one to one (`State::fans_one_to_one`).
     pub(super) verts: Vec<u32>,
     pub(super) corners: Vec<(u32, u32, DVec3, DVec3)>,
+    pub(super) passed: Vec<u32>,
 }
 
 /// A set of triangle ids, one bit each (2 MB for 16 M triangles), empty between uses.

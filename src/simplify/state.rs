@@ -286,10 +286,11 @@ impl State {
         self.crosses_nothing_of(buf, &plan.new, &plan.unchanged, &plan.around)
     }
 
-    /// Whether, after replacing `around` by `new` and `unchanged`, the fan of every vertex of
-    /// the new triangles projects one to one ([`fan_one_to_one`]). Then no two triangles with a
-    /// common vertex among them meet beyond what they share. (The pair rules also flag such
-    /// pairs within 10⁻⁶ of touching; a block's certificate still tests those.)
+    /// Which vertices of the new triangles have, after replacing `around` by `new` and
+    /// `unchanged`, a fan that projects one to one ([`fan_one_to_one`]): `buf.passed`, sorted.
+    /// No two triangles of such a fan meet beyond what they share. (The pair rules also flag
+    /// such pairs within 10⁻⁶ of touching; a block's certificate still tests those.) True when
+    /// every vertex's fan does.
     fn fans_one_to_one(
         &self,
         buf: &mut Crossing,
@@ -297,12 +298,18 @@ impl State {
         unchanged: &[([u32; 3], [DVec3; 3])],
         around: &[u32],
     ) -> bool {
-        let Crossing { verts, corners, .. } = buf;
+        let Crossing {
+            verts,
+            corners,
+            passed,
+            ..
+        } = buf;
         verts.clear();
         verts.extend(new.iter().flat_map(|(ids, _)| *ids));
         verts.sort_unstable();
         verts.dedup();
-        verts.iter().all(|&x| {
+        passed.clear();
+        passed.extend(verts.iter().copied().filter(|&x| {
             corners.clear();
             let mut at = None;
             for (ids, q) in new.iter().chain(unchanged) {
@@ -322,15 +329,16 @@ impl State {
                 corners.push((i, j, self.pos[i as usize], self.pos[j as usize]));
             }
             at.is_some_and(|p| fan_one_to_one(p, corners))
-        })
+        }));
+        passed.len() == verts.len()
     }
 
     /// The same test for any replacement of the live triangles `around` (sorted) by `new` and
     /// `unchanged` (ids as after it, places): each new triangle against the live triangles near
-    /// it but `around`, the unchanged ones and the new ones after it. Where the fans of the new
-    /// triangles' vertices project one to one ([`Self::fans_one_to_one`]) only the pairs
-    /// without a common vertex are tested: with crossings read from the neighbours, only new
-    /// ones (a collapse's all hold the kept vertex, so none).
+    /// it but `around`, the unchanged ones and the new ones after it. A pair with a common
+    /// vertex whose fan projects one to one ([`Self::fans_one_to_one`]) is not tested: with
+    /// crossings read from the neighbours, where every such fan does, no pair is left but new
+    /// ones without a common vertex (a collapse's all hold the kept vertex, so none).
     pub(super) fn crosses_nothing_of(
         &self,
         buf: &mut Crossing,
@@ -345,6 +353,8 @@ impl State {
             near,
             others,
             fan,
+            verts,
+            passed,
             ..
         } = buf;
         points.clear();
@@ -359,11 +369,10 @@ impl State {
             Crossings::Neighbours => {
                 // After the change the triangles that share a vertex with the new ones are
                 // those of their vertices' stars but `around`, and `unchanged`.
+                // Those of the vertices whose fans pass are left out.
                 near.clear();
-                for (ids, _) in new.iter().filter(|_| !fans) {
-                    for &x in ids {
-                        near.extend_from_slice(&self.star[x as usize]);
-                    }
+                for &x in verts.iter().filter(|x| passed.binary_search(x).is_err()) {
+                    near.extend_from_slice(&self.star[x as usize]);
                 }
             }
         }
@@ -388,12 +397,7 @@ impl State {
         fan.extend(new.iter().copied().map(Facet::new));
         for (k, t) in fan.iter().enumerate() {
             let mut pairs = others.iter().chain(&fan[k + 1..]);
-            let crossed = if fans {
-                pairs.any(|u| !t.shares_vertex(u) && t.meets(u))
-            } else {
-                pairs.any(|u| t.meets(u))
-            };
-            if crossed {
+            if pairs.any(|u| !t.shares_one_of(u, passed) && t.meets(u)) {
                 return Err(Reject::Intersection);
             }
         }
