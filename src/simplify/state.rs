@@ -368,8 +368,8 @@ impl State {
                 .near(points, near),
             Crossings::Neighbours => {
                 // After the change the triangles that share a vertex with the new ones are
-                // those of their vertices' stars but `around`, and `unchanged`.
-                // Those of the vertices whose fans pass are left out.
+                // those of their vertices' stars but `around`, and `unchanged`; the stars of
+                // vertices whose fans pass need no test.
                 near.clear();
                 for &x in verts.iter().filter(|x| passed.binary_search(x).is_err()) {
                     near.extend_from_slice(&self.star[x as usize]);
