@@ -40,6 +40,7 @@ pub(crate) mod band;
 mod batch;
 mod between;
 pub mod blocked;
+mod clusters;
 mod cover;
 mod discs;
 pub(crate) mod intersect;
@@ -156,6 +157,12 @@ pub struct SimplifyStats {
     /// crossing pair and was done again testing every near triangle (`blocked`).
     #[serde(default)]
     pub blocks_redone: u64,
+    /// Clusters of the voxel boundary's vertices each made one at a block's start
+    /// (`clusters`), and the vertices they removed.
+    #[serde(default)]
+    pub clusters: u64,
+    #[serde(default)]
+    pub cluster_vertices: u64,
 }
 
 impl SimplifyStats {
@@ -182,6 +189,8 @@ impl SimplifyStats {
         self.discs += o.discs;
         self.disc_vertices += o.disc_vertices;
         self.blocks_redone += o.blocks_redone;
+        self.clusters += o.clusters;
+        self.cluster_vertices += o.cluster_vertices;
     }
 }
 
@@ -649,7 +658,7 @@ mod tests {
     #[test]
     fn triangles_filed_after_in_plane_collapses_are_found() {
         let cls = crate::mesh::classify::test_support::random([14, 14, 14], 7);
-        let mut s = State::unfiled(extract(&cls));
+        let mut s = State::unfiled(extract(&cls), None);
         let mut scratch = Scratch::new(&cls, None, s.tris.len());
         let mut collapsed = 0;
         for t in 0..s.tris.len() {

@@ -68,15 +68,6 @@ impl State {
         Self::with_quadrics(mesh, None)
     }
 
-    /// [`Self::new`] without the triangle hash, which only the self-intersection checks read:
-    /// a block's pass first runs its collapses that keep the surface (more than half of all its
-    /// collapses), which never ask for it, so it files the triangles left after them
-    /// ([`Self::file`]) instead of filing every start triangle and then refiling each one such
-    /// a collapse reshapes.
-    pub(super) fn unfiled(mesh: Mesh) -> State {
-        Self::unfiled_with_quadrics(mesh, None)
-    }
-
     /// Files every live triangle in the triangle hash, unless it is filed already or the
     /// checks read the stars only ([`Crossings::Neighbours`]).
     pub(super) fn file(&mut self) {
@@ -127,13 +118,16 @@ impl State {
     /// [`Self::new`] with each vertex's quadric given (the sum of the planes of the start
     /// triangles it stands for), or made from `mesh`'s triangles when None.
     pub(super) fn with_quadrics(mesh: Mesh, quadrics: Option<Vec<Quadric>>) -> State {
-        let mut s = Self::unfiled_with_quadrics(mesh, quadrics);
+        let mut s = Self::unfiled(mesh, quadrics);
         s.file();
         s
     }
 
-    /// [`Self::with_quadrics`] without the triangle hash.
-    fn unfiled_with_quadrics(mesh: Mesh, quadrics: Option<Vec<Quadric>>) -> State {
+    /// [`Self::with_quadrics`] without the triangle hash, which only the self-intersection
+    /// checks read: a block's pass first runs its collapses that keep the surface, which never
+    /// ask for it, so it files the triangles left after them ([`Self::file`]) instead of filing
+    /// every start triangle and then refiling each one such a collapse reshapes.
+    pub(super) fn unfiled(mesh: Mesh, quadrics: Option<Vec<Quadric>>) -> State {
         let n = mesh.positions.len();
         let t_count = mesh.triangles.len();
         let mut s = State {

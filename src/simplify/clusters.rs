@@ -1,0 +1,600 @@
+//! A block's start coarsened by vertex clustering, checked once (docs/design.md, "A coarse
+//! start by clusters"). The voxel boundary's free vertices in each cell of [`CELL`]³ lattice
+//! points, joined by the patch's edges inside the cell, become one vertex at their mean; every
+//! triangle is mapped, and those with two corners in one cluster vanish. Most of a block's
+//! collapses (the in-plane ones and the first moving levels, about 6.8 of its 11.5 one-core
+//! seconds at n = 512) are done this way at once, each new triangle checked once.
+//!
+//! What keeps it sound, the checks of a collapse applied to the whole step:
+//! - tolerance: every moved triangle passes the band test (`band::Proximity::triangle_within`);
+//! - border: every moved triangle's vertex is locked or strictly inside the block's box, and
+//!   clusters hold no locked vertex, so the patches still fit and stay in their boxes;
+//! - sweep: the fine triangles moved (O) and the new ones (N) both miss the swept volume, so the
+//!   winding number of O - N is constant on each of its pieces; the step is taken only when it
+//!   is zero at each ([`super::pieces::Pieces::swallowed`]), so no point of it is lost. Without
+//!   the pieces the start is not coarsened;
+//! - topology: each cluster spans a contractible part of the surface (connected, Euler
+//!   characteristic 1); after mapping, every edge at a cluster has one triangle each way and
+//!   every vertex a moved triangle touches has one fan; and the patch's Euler characteristic is
+//!   unchanged. A map of a surface that keeps orientation never raises the genus and never
+//!   splits or joins components here (a cluster is connected), so the same characteristic means
+//!   the same surface, a closed 2-manifold once the blocks are welded;
+//! - self-intersection: by the block's certificate ([`super::state::State::crossing_free`]);
+//!   the start is coarsened only in a pass that ends with it (a pass that tests every near
+//!   triangle starts fine).
+//!
+//! A cluster whose triangles fail a local check is left fine and the checks run again on what
+//! changed, until none fails; a failed sweep or Euler check leaves the whole block fine. The
+//! result depends only on the patch: cells, clusters and ids follow vertex order.
+
+use std::collections::HashSet;
+use std::hash::BuildHasherDefault;
+
+use glam::DVec3;
+
+use super::band::KeyHasher;
+use super::quadric::Quadric;
+use super::region::Scratch;
+use super::SimplifyOptions;
+use crate::mesh::blocks::Block;
+use crate::mesh::Mesh;
+use crate::union_find::UnionFind;
+
+/// Lattice points along each edge of a cell (voxels). At 4 a surface of every fourth voxel put
+/// 99% of its triangles in T at n = 512 and 1500 (docs/perf-log.md, "A coarse start by surface
+/// nets"); at 8, 89-93%.
+pub(super) const CELL: f64 = 4.0;
+
+/// Least twice-area of a moved triangle, voxel²: slivers are left fine.
+const MIN_AREA2: f64 = 1e-6;
+
+/// A block's start after clustering: the mesh, which vertices are locked, each vertex's
+/// quadric (the planes of the fine triangles it stands for), and how many clusters were taken
+/// and how many vertices they removed.
+pub(super) struct Coarse {
+    pub(super) mesh: Mesh,
+    pub(super) locked: Vec<bool>,
+    pub(super) quadric: Vec<Quadric>,
+    pub(super) clusters: u64,
+    pub(super) removed: u64,
+}
+
+/// Why a block's start stayed fine.
+#[derive(Debug, PartialEq, Eq)]
+pub(super) enum Declined {
+    /// No cluster of two or more free vertices passed the checks.
+    Nothing,
+    /// The swept volume's pieces are not known.
+    NoPieces,
+    /// The step would change the winding number at a piece of the swept volume.
+    Sweep,
+    /// The patch's Euler characteristic would change.
+    Euler,
+}
+
+/// The clusters of `mesh`'s free vertices: each vertex's cluster (u32::MAX for none) and each
+/// cluster's members in vertex order. Only clusters of two or more are kept.
+fn clusters(mesh: &Mesh, locked: &[bool]) -> (Vec<u32>, Vec<Vec<u32>>) {
+    let n = mesh.positions.len();
+    let cell = |v: u32| (mesh.positions[v as usize] / CELL).floor();
+    let mut uf = UnionFind::new(n);
+    for t in &mesh.triangles {
+        for k in 0..3 {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            if !locked[a as usize] && !locked[b as usize] && cell(a) == cell(b) {
+                uf.join(a, b);
+            }
+        }
+    }
+    // A root is its set's smallest id, so clusters are numbered in the order of their first
+    // member.
+    let mut size = vec![0u32; n];
+    for v in 0..n as u32 {
+        size[uf.find(v) as usize] += 1;
+    }
+    let mut id = vec![u32::MAX; n];
+    let mut members: Vec<Vec<u32>> = Vec::new();
+    for v in 0..n as u32 {
+        let root = uf.find(v);
+        if size[root as usize] < 2 {
+            continue;
+        }
+        if root == v {
+            id[v as usize] = members.len() as u32;
+            members.push(Vec::new());
+        }
+        let c = id[root as usize];
+        id[v as usize] = c;
+        members[c as usize].push(v);
+    }
+    (id, members)
+}
+
+/// Whether the edges and triangles among each cluster's members form a contractible set
+/// (connected by construction; Euler characteristic 1), per cluster.
+fn contractible(mesh: &Mesh, cluster: &[u32], count: usize) -> Vec<bool> {
+    let mut chi: Vec<i64> = vec![0; count];
+    let mut edges: Vec<(u32, u32, u32)> = Vec::new();
+    for &c in cluster.iter().filter(|&&c| c != u32::MAX) {
+        chi[c as usize] += 1;
+    }
+    for t in &mesh.triangles {
+        let c = cluster[t[0] as usize];
+        if c != u32::MAX && t.iter().all(|&x| cluster[x as usize] == c) {
+            chi[c as usize] += 1;
+        }
+        for k in 0..3 {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            let c = cluster[a as usize];
+            if c != u32::MAX && cluster[b as usize] == c {
+                edges.push((c, a.min(b), a.max(b)));
+            }
+        }
+    }
+    edges.sort_unstable();
+    edges.dedup();
+    for (c, _, _) in edges {
+        chi[c as usize] -= 1;
+    }
+    chi.iter().map(|&x| x == 1).collect()
+}
+
+/// Whether the directed link edges around one vertex form one fan: a single cycle, or for a
+/// vertex on the patch's open edges (`open`) a single path.
+fn one_fan(link: &mut [(u32, u32)], open: bool) -> bool {
+    if link.is_empty() || (!open && link.len() < 3) {
+        return false;
+    }
+    link.sort_unstable();
+    if link.windows(2).any(|w| w[0].0 == w[1].0) {
+        return false;
+    }
+    // The walk starts where no edge ends (a path), else anywhere (a cycle).
+    let mut ends: Vec<u32> = link.iter().map(|e| e.1).collect();
+    ends.sort_unstable();
+    if ends.windows(2).any(|w| w[0] == w[1]) {
+        return false;
+    }
+    let start = link
+        .iter()
+        .map(|e| e.0)
+        .find(|x| ends.binary_search(x).is_err());
+    let first = match (start, open) {
+        (Some(s), true) => s,
+        (None, false) => link[0].0,
+        _ => return false,
+    };
+    let mut at = first;
+    for step in 1..=link.len() {
+        let Ok(k) = link.binary_search_by_key(&at, |e| e.0) else {
+            return false;
+        };
+        at = link[k].1;
+        if at == first || (open && step == link.len()) {
+            return step == link.len() && (open != (at == first));
+        }
+    }
+    false
+}
+
+/// `mesh`'s start coarsened by clusters where every check passes (module docs); the reason
+/// when it stays fine.
+pub(super) fn coarsen(
+    mesh: &Mesh,
+    locked: &[bool],
+    block: &Block,
+    scratch: &mut Scratch,
+    opts: &SimplifyOptions,
+) -> Result<Coarse, Declined> {
+    let Some(pieces) = scratch.pieces else {
+        return Err(Declined::NoPieces);
+    };
+    let n = mesh.positions.len();
+    let (cluster, members) = clusters(mesh, locked);
+    let mut active = contractible(mesh, &cluster, members.len());
+    let point: Vec<DVec3> = members
+        .iter()
+        .map(|m| m.iter().map(|&v| mesh.positions[v as usize]).sum::<DVec3>() / m.len() as f64)
+        .collect();
+    // Each fine vertex's triangles.
+    let mut star: Vec<Vec<u32>> = vec![Vec::new(); n];
+    for (t, tri) in mesh.triangles.iter().enumerate() {
+        for &v in tri {
+            star[v as usize].push(t as u32);
+        }
+    }
+    // Ids while checking: fine vertices 0..n, cluster c as n + c.
+    let image = |active: &[bool], v: u32| match cluster[v as usize] {
+        c if c != u32::MAX && active[c as usize] => n as u32 + c,
+        _ => v,
+    };
+    let place = |x: u32| {
+        if (x as usize) < n {
+            mesh.positions[x as usize]
+        } else {
+            point[x as usize - n]
+        }
+    };
+    let mapped = |active: &[bool], t: &[u32; 3]| -> Option<[u32; 3]> {
+        let m = t.map(|v| image(active, v));
+        (m[0] != m[1] && m[1] != m[2] && m[2] != m[0]).then_some(m)
+    };
+    let mut passed: HashSet<[u32; 3], BuildHasherDefault<KeyHasher>> = HashSet::default();
+    let (tol, r_min) = (opts.tolerance, opts.min_radius);
+    loop {
+        let mut bad: Vec<u32> = Vec::new();
+        let blame = |bad: &mut Vec<u32>, xs: &[u32]| {
+            bad.extend(
+                xs.iter()
+                    .filter(|&&x| x as usize >= n)
+                    .map(|&x| x - n as u32),
+            );
+        };
+        // The moved triangles: those with a corner in an active cluster, mapped.
+        let mut moved: Vec<[u32; 3]> = Vec::new();
+        let mut touched: Vec<u32> = Vec::new();
+        for t in &mesh.triangles {
+            if t.iter().all(|&v| image(&active, v) == v) {
+                continue;
+            }
+            touched.extend(t.iter().filter(|&&v| image(&active, v) == v));
+            moved.extend(mapped(&active, t));
+        }
+        // Border rule, slivers, band.
+        for m in &moved {
+            let q = m.map(place);
+            let border = m.iter().zip(&q).any(|(&x, &p)| {
+                (x as usize) < n && !locked[x as usize] && !block.strictly_holds(p)
+            });
+            let border = border
+                || m.iter()
+                    .any(|&x| x as usize >= n && !block.strictly_holds(place(x)));
+            let sliver = (q[1] - q[0]).cross(q[2] - q[0]).length() < MIN_AREA2;
+            if border || sliver {
+                blame(&mut bad, m);
+                continue;
+            }
+            if passed.contains(m) {
+                continue;
+            }
+            let prox = &mut scratch.prox;
+            if prox.probes_miss(&q, tol) || !prox.triangle_within(q, tol, r_min) {
+                blame(&mut bad, m);
+            } else {
+                passed.insert(*m);
+            }
+        }
+        // Every edge at a cluster: one triangle each way.
+        let mut directed: Vec<(u32, u32, u32)> = Vec::new();
+        for m in &moved {
+            for k in 0..3 {
+                let (a, b) = (m[k], m[(k + 1) % 3]);
+                if a as usize >= n || b as usize >= n {
+                    directed.push((a.min(b), a.max(b), a));
+                }
+            }
+        }
+        directed.sort_unstable();
+        for group in directed.chunk_by(|e, f| (e.0, e.1) == (f.0, f.1)) {
+            if !matches!(group, [e, f] if e.2 != f.2) {
+                blame(&mut bad, &[group[0].0, group[0].1]);
+            }
+        }
+        // One fan at every vertex a moved triangle touches: a cluster's from its moved
+        // triangles, a fine vertex's from its mapped star.
+        let mut links: Vec<Vec<(u32, u32)>> = vec![Vec::new(); members.len()];
+        for m in &moved {
+            for k in 0..3 {
+                if m[k] as usize >= n {
+                    links[m[k] as usize - n].push((m[(k + 1) % 3], m[(k + 2) % 3]));
+                }
+            }
+        }
+        for (c, link) in links.iter_mut().enumerate() {
+            if active[c] && !one_fan(link, false) {
+                bad.push(c as u32);
+            }
+        }
+        touched.sort_unstable();
+        touched.dedup();
+        for &v in &touched {
+            let mut link: Vec<(u32, u32)> = Vec::new();
+            let mut near: Vec<u32> = Vec::new();
+            for &t in &star[v as usize] {
+                let Some(m) = mapped(&active, &mesh.triangles[t as usize]) else {
+                    near.extend(mesh.triangles[t as usize].map(|x| image(&active, x)));
+                    continue;
+                };
+                let k = m.iter().position(|&x| x == v).expect("v is a corner");
+                link.push((m[(k + 1) % 3], m[(k + 2) % 3]));
+                near.extend(m);
+            }
+            if !one_fan(&mut link, locked[v as usize]) {
+                blame(&mut bad, &near);
+            }
+        }
+        if bad.is_empty() {
+            break;
+        }
+        for c in bad {
+            active[c as usize] = false;
+        }
+    }
+    let taken: Vec<usize> = (0..members.len()).filter(|&c| active[c]).collect();
+    if taken.is_empty() {
+        return Err(Declined::Nothing);
+    }
+    // Euler characteristic: V - E + F with E = (3F + open edges) / 2 and the open edges kept,
+    // so it is unchanged when the vertices removed are half the triangles removed.
+    let removed: usize = taken.iter().map(|&c| members[c].len() - 1).sum();
+    let mut old: Vec<[DVec3; 3]> = Vec::new();
+    let mut new: Vec<[DVec3; 3]> = Vec::new();
+    let mut triangles: Vec<[u32; 3]> = Vec::with_capacity(mesh.triangles.len());
+    for t in &mesh.triangles {
+        let m = mapped(&active, t);
+        if t.iter().any(|&v| image(&active, v) != v) {
+            old.push(t.map(|v| mesh.positions[v as usize]));
+            if let Some(m) = m {
+                new.push(m.map(place));
+            }
+        }
+        triangles.extend(m);
+    }
+    if 2 * removed != mesh.triangles.len() - triangles.len() {
+        return Err(Declined::Euler);
+    }
+    if pieces.swallowed(&old, &new) {
+        return Err(Declined::Sweep);
+    }
+    // Fine quadrics, summed per cluster.
+    let mut fine = vec![Quadric::default(); n];
+    for t in &mesh.triangles {
+        let q = Quadric::plane(t.map(|v| mesh.positions[v as usize]));
+        for &v in t {
+            fine[v as usize] = fine[v as usize].add(&q);
+        }
+    }
+    // New ids in vertex order, a cluster at its first member's place in it.
+    let mut id = vec![u32::MAX; n + members.len()];
+    let mut out = Coarse {
+        mesh: Mesh::default(),
+        locked: Vec::new(),
+        quadric: Vec::new(),
+        clusters: taken.len() as u64,
+        removed: removed as u64,
+    };
+    for v in 0..n as u32 {
+        let x = image(&active, v);
+        if x == v {
+            id[v as usize] = out.mesh.positions.len() as u32;
+            out.mesh.positions.push(mesh.positions[v as usize]);
+            out.locked.push(locked[v as usize]);
+            out.quadric.push(fine[v as usize]);
+        } else if id[x as usize] == u32::MAX {
+            let c = x as usize - n;
+            id[x as usize] = out.mesh.positions.len() as u32;
+            out.mesh.positions.push(point[c]);
+            out.locked.push(false);
+            out.quadric.push(
+                members[c]
+                    .iter()
+                    .fold(Quadric::default(), |q, &m| q.add(&fine[m as usize])),
+            );
+        }
+    }
+    out.mesh.triangles = triangles
+        .iter()
+        .map(|t| t.map(|x| id[x as usize]))
+        .collect();
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::classify::test_support::{boxed, random};
+    use crate::mesh::classify::Classifier;
+    use crate::mesh::extract::extract;
+    use crate::mesh::manifold::Joined;
+    use crate::simplify::band::dist_to_centre;
+    use crate::simplify::pieces::{winding, Pieces};
+    use crate::simplify::Tolerance;
+
+    fn opts() -> SimplifyOptions {
+        SimplifyOptions {
+            tolerance: Tolerance {
+                outside: 1.466,
+                inside: 1.466,
+            },
+            sweep: 1.486,
+            min_radius: 0.05,
+            target_triangles: 0,
+        }
+    }
+
+    fn places(m: &Mesh) -> Vec<[DVec3; 3]> {
+        m.triangles
+            .iter()
+            .map(|t| t.map(|v| m.positions[v as usize]))
+            .collect()
+    }
+
+    fn euler(m: &Mesh) -> i64 {
+        let mut edges: Vec<(u32, u32)> = m
+            .triangles
+            .iter()
+            .flat_map(|t| [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])])
+            .map(|(a, b)| (a.min(b), a.max(b)))
+            .collect();
+        edges.sort_unstable();
+        edges.dedup();
+        let mut used: Vec<u32> = m.triangles.iter().flatten().copied().collect();
+        used.sort_unstable();
+        used.dedup();
+        used.len() as i64 - edges.len() as i64 + m.triangles.len() as i64
+    }
+
+    /// Voxel centres (grid units) inside the voxels and out of T: where the swept volume may
+    /// be. And those outside them and out of T: where the outside is.
+    fn deep_and_far(cls: &Classifier, dims: [u32; 3]) -> (Vec<DVec3>, Vec<DVec3>) {
+        let (mut deep, mut far) = (Vec::new(), Vec::new());
+        let r = opts().tolerance.outside + 0.01;
+        for x in 0..dims[0] {
+            for y in 0..dims[1] {
+                for z in 0..dims[2] {
+                    let p = DVec3::new(x as f64, y as f64, z as f64) + 0.5;
+                    let v = p.floor().to_array().map(|c| c as isize);
+                    if cls.inside(v[0], v[1], v[2]) {
+                        if dist_to_centre(cls, p, false, r).is_none() {
+                            deep.push(p);
+                        }
+                    } else if dist_to_centre(cls, p, true, r).is_none() {
+                        far.push(p);
+                    }
+                }
+            }
+        }
+        (deep, far)
+    }
+
+    /// Rough random voxel sets (tunnels, thin walls, concavities), one block: the coarse start
+    /// removes over a third of the vertices and stays a closed 2-manifold of the same Euler characteristic,
+    /// every moved triangle in T (sampled against the exact distances), every point of the voxels
+    /// out of T still enclosed and every point of the outside out of T still outside.
+    #[test]
+    fn random_sets_coarsen_to_the_same_closed_surface_in_t() {
+        for seed in 0..4 {
+            let dims = [26, 24, 22];
+            let cls = random(dims, seed);
+            let joined = Joined::new(&cls);
+            let fine = extract(&joined);
+            let (deep, far) = deep_and_far(&cls, dims);
+            assert!(deep.len() > 50 && far.len() > 50, "seed {seed}");
+            let pieces = Pieces::from_points(deep.iter().map(|&p| [p, p]).collect());
+            let mut scratch = Scratch::new(&cls, Some(&pieces), fine.triangles.len());
+            let block = Block {
+                lo: [0; 3],
+                hi: dims.map(|d| d as usize),
+            };
+            let locked = vec![false; fine.positions.len()];
+            let out = coarsen(&fine, &locked, &block, &mut scratch, &opts())
+                .unwrap_or_else(|why| panic!("seed {seed}: declined, {why:?}"));
+            let m = &out.mesh;
+            assert_eq!(
+                m.positions.len() as u64 + out.removed,
+                fine.positions.len() as u64
+            );
+            assert!(
+                m.positions.len() * 3 < fine.positions.len() * 2,
+                "seed {seed}: {} of {} vertices left",
+                m.positions.len(),
+                fine.positions.len()
+            );
+            assert!(m.manifold_defects().is_manifold() && m.unpaired_edges().is_empty());
+            assert_eq!(euler(m), euler(&fine), "seed {seed}");
+            // The fine triangles left as they were are joined voxels' faces, which T need not
+            // hold (the stated bound covers them); every other one must lie in it.
+            let key = |t: &[DVec3; 3]| t.map(|p| p.to_array().map(f64::to_bits));
+            let kept: HashSet<_> = places(&fine).iter().map(key).collect();
+            let moved: Vec<[DVec3; 3]> = places(m)
+                .into_iter()
+                .filter(|t| !kept.contains(&key(t)))
+                .collect();
+            assert!(
+                moved.len() > 200,
+                "seed {seed}: {} of {} moved",
+                moved.len(),
+                m.triangles.len()
+            );
+            for t in moved {
+                for (u, v) in [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0 / 3.0, 1.0 / 3.0)] {
+                    let p = t[0] + (t[1] - t[0]) * u + (t[2] - t[0]) * v;
+                    let tol = opts().tolerance;
+                    assert!(
+                        dist_to_centre(&cls, p, false, tol.outside).is_some()
+                            && dist_to_centre(&cls, p, true, tol.inside).is_some(),
+                        "seed {seed}: {p} out of T"
+                    );
+                }
+            }
+            let tris = places(m);
+            for &p in &deep {
+                let w = winding(&tris, p);
+                assert!((w - 1.0).abs() < 1e-6, "seed {seed}: winding {w} at {p}");
+            }
+            for &p in &far {
+                let w = winding(&tris, p);
+                assert!(w.abs() < 1e-6, "seed {seed}: winding {w} at {p}");
+            }
+        }
+    }
+
+    /// The sweep check is wired in: the corners of a cube's coarse start cut into it, so a
+    /// piece of the swept volume put in a corner declines the whole step, and the same step
+    /// without it leaves that point outside.
+    #[test]
+    fn a_piece_the_step_would_leave_outside_declines_it() {
+        let cls = boxed([12, 12, 12], [2.0; 3], [8.0; 3]);
+        let fine = extract(&Joined::new(&cls));
+        let block = Block {
+            lo: [0; 3],
+            hi: [12; 3],
+        };
+        let locked = vec![false; fine.positions.len()];
+        let corner = DVec3::splat(2.1);
+        let run = |points: Vec<[DVec3; 2]>| {
+            let pieces = Pieces::from_points(points);
+            let mut scratch = Scratch::new(&cls, Some(&pieces), fine.triangles.len());
+            coarsen(&fine, &locked, &block, &mut scratch, &opts())
+        };
+        assert_eq!(run(vec![[corner; 2]]).err(), Some(Declined::Sweep));
+        let out = run(Vec::new()).expect("no piece in the way");
+        assert!(winding(&places(&out.mesh), corner).abs() < 1e-6);
+        assert!((winding(&places(&fine), corner) - 1.0).abs() < 1e-6);
+        // Without the pieces the start stays fine.
+        let mut scratch = Scratch::new(&cls, None, fine.triangles.len());
+        let none = coarsen(&fine, &locked, &block, &mut scratch, &opts());
+        assert_eq!(none.err(), Some(Declined::NoPieces));
+    }
+
+    /// Locked vertices (a patch's open edges) never join a cluster and stay where they are.
+    #[test]
+    fn locked_vertices_stay() {
+        let cls = random([20, 20, 20], 3);
+        let fine = extract(&Joined::new(&cls));
+        let locked: Vec<bool> = fine.positions.iter().map(|p| p.x < 10.0).collect();
+        let pieces = Pieces::from_points(Vec::new());
+        let mut scratch = Scratch::new(&cls, Some(&pieces), fine.triangles.len());
+        let block = Block {
+            lo: [0; 3],
+            hi: [20; 3],
+        };
+        let out = coarsen(&fine, &locked, &block, &mut scratch, &opts()).unwrap();
+        let kept: Vec<DVec3> = (0..out.mesh.positions.len())
+            .filter(|&v| out.locked[v])
+            .map(|v| out.mesh.positions[v])
+            .collect();
+        let want: Vec<DVec3> = (0..fine.positions.len())
+            .filter(|&v| locked[v])
+            .map(|v| fine.positions[v])
+            .collect();
+        assert_eq!(kept, want);
+        assert!(out.clusters > 0);
+    }
+
+    /// A fan is one cycle, or for an open vertex one path; a pinch (two cycles, a repeated
+    /// vertex) or a broken path is not.
+    #[test]
+    fn fans_are_one_cycle_or_one_path() {
+        let f = |l: &[(u32, u32)], open| one_fan(&mut l.to_vec(), open);
+        assert!(f(&[(1, 2), (2, 3), (3, 1)], false));
+        assert!(!f(&[(1, 2), (2, 3), (3, 1)], true));
+        assert!(f(&[(1, 2), (2, 3), (3, 4)], true));
+        assert!(!f(&[(1, 2), (2, 3), (3, 4)], false));
+        assert!(!f(&[(1, 2), (2, 3), (3, 1), (4, 5), (5, 6), (6, 4)], false));
+        assert!(!f(&[(1, 2), (2, 3), (3, 1), (1, 4), (4, 5), (5, 1)], false));
+        assert!(!f(&[(1, 2), (3, 4)], true));
+        assert!(!f(&[(1, 2), (2, 3), (3, 1), (4, 5)], true));
+        assert!(!f(&[(1, 2), (2, 1)], false));
+    }
+}
