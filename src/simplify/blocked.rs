@@ -207,21 +207,9 @@ fn simplify_block(
         });
     }
     let mut scratch = Scratch::new(cls, pieces, mesh.triangles.len());
-    // The start coarsened by clusters, checked once, in a pass whose crossings the block's
-    // certificate decides (a pass that tests every near triangle starts fine).
-    let coarse = match crossings {
-        Crossings::Neighbours => clusters::coarsen(&mesh, &locked, block, &mut scratch, &opts).ok(),
-        Crossings::Near => None,
-    };
-    let (mesh, locked, quadric, taken) = match coarse {
-        Some(c) => (c.mesh, c.locked, Some(c.quadric), (c.clusters, c.removed)),
-        None => (mesh, locked, None, (0, 0)),
-    };
-    // The triangle hash is made when the first check that moves the surface needs it (never
-    // when the checks read neighbours only).
-    let mut s = State::unfiled(mesh, quadric);
+    let (mut s, locked) = coarse_start(&mesh, &locked, block, &mut scratch, &opts, crossings)
+        .unwrap_or_else(|| (State::unfiled(mesh, None), locked));
     s.crossings = crossings;
-    (s.stats.clusters, s.stats.cluster_vertices) = taken;
     let free = |c: &super::queue::Candidate| !locked[c.a as usize] && !locked[c.b as usize];
     let mut heap = Queue::new(all_edges(&s).into_iter().filter(free).collect());
     let mut parked = HashMap::new();
@@ -324,6 +312,51 @@ fn simplify_block(
         stats: s.stats,
         triangles_start,
     })
+}
+
+/// A block's start coarsened by clusters (`clusters`), as a state (hash not filed) with its
+/// vertices' locks; None when no cluster is taken. Crossings: a pass that tests neighbours only
+/// is certified at its end, coarse start included; for a pass that tests every near triangle
+/// the start itself must hold no conflicting pair, so the clusters of the triangles in one are
+/// left fine and the start made again (a few times at most, else the pass starts fine).
+fn coarse_start(
+    mesh: &Mesh,
+    locked: &[bool],
+    block: &Block,
+    scratch: &mut Scratch,
+    opts: &SimplifyOptions,
+    crossings: Crossings,
+) -> Option<(State, Vec<bool>)> {
+    /// Starts made again for conflicting pairs before the pass starts fine.
+    const TRIES: usize = 4;
+    let mut vetoed: Vec<u32> = Vec::new();
+    for _ in 0..TRIES {
+        let c = clusters::coarsen(mesh, locked, &vetoed, block, scratch, opts).ok()?;
+        let mut s = State::unfiled(c.mesh, Some(c.quadric));
+        (s.stats.clusters, s.stats.cluster_vertices) = (c.clusters, c.removed);
+        if crossings == Crossings::Neighbours {
+            return Some((s, c.locked));
+        }
+        let pairs = s.conflicts(false);
+        if pairs.is_empty() {
+            return Some((s, c.locked));
+        }
+        let before = vetoed.len();
+        for (t, u) in pairs {
+            for x in s.tris[t as usize].iter().chain(&s.tris[u as usize]) {
+                let k = c.cluster[*x as usize];
+                if k != u32::MAX {
+                    vetoed.push(k);
+                }
+            }
+        }
+        vetoed.sort_unstable();
+        vetoed.dedup();
+        if vetoed.len() == before {
+            return None;
+        }
+    }
+    None
 }
 
 /// The blocks' meshes as one, welded at their locked vertices (which sit on lattice corners),
@@ -571,6 +604,66 @@ mod tests {
             }
         }
         assert!(clusters > 150, "only {clusters} clusters taken");
+    }
+
+    /// A pass that tests every near triangle keeps its coarse start only without a conflicting
+    /// pair: on random piles of boxes (each pixel's depth range spans the boxes it meets) whose
+    /// clusters alone give such pairs, the start made again without their clusters holds none
+    /// and still has clusters.
+    #[test]
+    fn a_near_pass_starts_from_clusters_without_conflicts() {
+        let (mut conflicted, mut kept) = (0, 0);
+        for seed in 0..200 {
+            let mut rng = fastrand::Rng::with_seed(seed);
+            let boxes: Vec<([f32; 3], [f32; 3])> = (0..6)
+                .map(|_| {
+                    let lo = [0; 3].map(|_| rng.u32(2..12) as f32);
+                    let hi = lo.map(|x| x + rng.u32(1..7) as f32);
+                    (lo, hi)
+                })
+                .collect();
+            let cls = crate::mesh::classify::test_support::from_ranges([20, 18, 16], |a, u, v| {
+                let (cu, rv) = (crate::depth::COLUMN_AXIS[a], crate::depth::ROW_AXIS[a]);
+                let hits: Vec<_> = boxes
+                    .iter()
+                    .filter(|(lo, hi)| u > lo[cu] && u < hi[cu] && v > lo[rv] && v < hi[rv])
+                    .collect();
+                let lo = hits.iter().map(|b| b.0[a]).fold(f32::MAX, f32::min);
+                let hi = hits.iter().map(|b| b.1[a]).fold(f32::MIN, f32::max);
+                (!hits.is_empty()).then_some((lo + 0.1, hi - 0.1))
+            });
+            let fine = crate::mesh::extract::extract(&Joined::new(&cls));
+            let pieces = Pieces::from_points(Vec::new());
+            let block = Block {
+                lo: [0; 3],
+                hi: [20, 18, 16],
+            };
+            let locked = vec![false; fine.positions.len()];
+            let mut scratch = Scratch::new(&cls, Some(&pieces), fine.triangles.len());
+            let first = clusters::coarsen(&fine, &locked, &[], &block, &mut scratch, &opts());
+            let Ok(first) = first else { continue };
+            if State::unfiled(first.mesh, None).crossing_free() {
+                continue;
+            }
+            conflicted += 1;
+            let near = coarse_start(
+                &fine,
+                &locked,
+                &block,
+                &mut scratch,
+                &opts(),
+                Crossings::Near,
+            );
+            if let Some((s, _)) = near {
+                assert!(s.conflicts(false).is_empty(), "seed {seed}");
+                assert!(s.stats.clusters > 0);
+                kept += 1;
+            }
+        }
+        assert!(
+            conflicted > 0 && kept > 0,
+            "{conflicted} conflicted, {kept} kept"
+        );
     }
 
     /// Small separate blobs (2 to 4 voxels wide), each with the points farther than the tolerance

@@ -43,7 +43,7 @@ use crate::union_find::UnionFind;
 /// Lattice points along each edge of a cell (voxels). At 4 a surface of every fourth voxel put
 /// 99% of its triangles in T at n = 512 and 1500 (docs/perf-log.md, "A coarse start by surface
 /// nets"); at 8, 89-93%.
-pub(super) const CELL: f64 = 4.0;
+const CELL: f64 = 4.0;
 
 /// Least twice-area of a moved triangle, voxel²: slivers are left fine.
 const MIN_AREA2: f64 = 1e-6;
@@ -57,6 +57,8 @@ pub(super) struct Coarse {
     pub(super) quadric: Vec<Quadric>,
     pub(super) clusters: u64,
     pub(super) removed: u64,
+    /// Each vertex's cluster (an id [`coarsen`] takes in `vetoed`), u32::MAX for a fine one.
+    pub(super) cluster: Vec<u32>,
 }
 
 /// Why a block's start stayed fine.
@@ -182,6 +184,7 @@ fn one_fan(link: &mut [(u32, u32)], open: bool) -> bool {
 pub(super) fn coarsen(
     mesh: &Mesh,
     locked: &[bool],
+    vetoed: &[u32],
     block: &Block,
     scratch: &mut Scratch,
     opts: &SimplifyOptions,
@@ -192,17 +195,30 @@ pub(super) fn coarsen(
     let n = mesh.positions.len();
     let (cluster, members) = clusters(mesh, locked);
     let mut active = contractible(mesh, &cluster, members.len());
+    for &c in vetoed {
+        active[c as usize] = false;
+    }
     let point: Vec<DVec3> = members
         .iter()
         .map(|m| m.iter().map(|&v| mesh.positions[v as usize]).sum::<DVec3>() / m.len() as f64)
         .collect();
-    // Each fine vertex's triangles.
-    let mut star: Vec<Vec<u32>> = vec![Vec::new(); n];
+    // Each fine vertex's triangles (offsets into one list).
+    let mut first = vec![0u32; n + 1];
+    for &v in mesh.triangles.iter().flatten() {
+        first[v as usize + 1] += 1;
+    }
+    for v in 0..n {
+        first[v + 1] += first[v];
+    }
+    let mut star = vec![0u32; 3 * mesh.triangles.len()];
+    let mut at = first.clone();
     for (t, tri) in mesh.triangles.iter().enumerate() {
         for &v in tri {
-            star[v as usize].push(t as u32);
+            star[at[v as usize] as usize] = t as u32;
+            at[v as usize] += 1;
         }
     }
+    let star = |v: u32| &star[first[v as usize] as usize..first[v as usize + 1] as usize];
     // Ids while checking: fine vertices 0..n, cluster c as n + c.
     let image = |active: &[bool], v: u32| match cluster[v as usize] {
         c if c != u32::MAX && active[c as usize] => n as u32 + c,
@@ -221,6 +237,15 @@ pub(super) fn coarsen(
     };
     let mut passed: HashSet<[u32; 3], BuildHasherDefault<KeyHasher>> = HashSet::default();
     let (tol, r_min) = (opts.tolerance, opts.min_radius);
+    // What each round checks: the clusters whose triangles may have changed (all active ones
+    // first, then those next to a cluster just left fine) and the fine vertices next to those.
+    // A cluster's one fan also gives each edge at it one triangle each way; an edge between
+    // two fine vertices keeps its two triangles.
+    let mut dirty: Vec<u32> = (0..members.len() as u32)
+        .filter(|&c| active[c as usize])
+        .collect();
+    let mut fine_near: Vec<u32> = Vec::new();
+    let mut link: Vec<(u32, u32)> = Vec::new();
     loop {
         let mut bad: Vec<u32> = Vec::new();
         let blame = |bad: &mut Vec<u32>, xs: &[u32]| {
@@ -230,79 +255,55 @@ pub(super) fn coarsen(
                     .map(|&x| x - n as u32),
             );
         };
-        // The moved triangles: those with a corner in an active cluster, mapped.
-        let mut moved: Vec<[u32; 3]> = Vec::new();
-        let mut touched: Vec<u32> = Vec::new();
-        for t in &mesh.triangles {
-            if t.iter().all(|&v| image(&active, v) == v) {
+        for &c in &dirty {
+            if !active[c as usize] {
                 continue;
             }
-            touched.extend(t.iter().filter(|&&v| image(&active, v) == v));
-            moved.extend(mapped(&active, t));
-        }
-        // Border rule, slivers, band.
-        for m in &moved {
-            let q = m.map(place);
-            let border = m.iter().zip(&q).any(|(&x, &p)| {
-                (x as usize) < n && !locked[x as usize] && !block.strictly_holds(p)
-            });
-            let border = border
-                || m.iter()
-                    .any(|&x| x as usize >= n && !block.strictly_holds(place(x)));
-            let sliver = (q[1] - q[0]).cross(q[2] - q[0]).length() < MIN_AREA2;
-            if border || sliver {
-                blame(&mut bad, m);
-                continue;
-            }
-            if passed.contains(m) {
-                continue;
-            }
-            let prox = &mut scratch.prox;
-            if prox.probes_miss(&q, tol) || !prox.triangle_within(q, tol, r_min) {
-                blame(&mut bad, m);
-            } else {
-                passed.insert(*m);
-            }
-        }
-        // Every edge at a cluster: one triangle each way.
-        let mut directed: Vec<(u32, u32, u32)> = Vec::new();
-        for m in &moved {
-            for k in 0..3 {
-                let (a, b) = (m[k], m[(k + 1) % 3]);
-                if a as usize >= n || b as usize >= n {
-                    directed.push((a.min(b), a.max(b), a));
+            link.clear();
+            let me = n as u32 + c;
+            for &v in &members[c as usize] {
+                for &t in star(v) {
+                    let tri = &mesh.triangles[t as usize];
+                    fine_near.extend(tri.iter().filter(|&&x| image(&active, x) == x));
+                    let Some(m) = mapped(&active, tri) else {
+                        continue;
+                    };
+                    let k = m.iter().position(|&x| x == me).expect("c is a corner");
+                    link.push((m[(k + 1) % 3], m[(k + 2) % 3]));
+                    // The border rule, slivers, the band (once per triangle).
+                    if passed.contains(&m) {
+                        continue;
+                    }
+                    let q = m.map(place);
+                    let off_box = m.iter().zip(&q).any(|(&x, &p)| {
+                        (x as usize >= n || !locked[x as usize]) && !block.strictly_holds(p)
+                    });
+                    let sliver = (q[1] - q[0]).cross(q[2] - q[0]).length() < MIN_AREA2;
+                    let prox = &mut scratch.prox;
+                    if off_box
+                        || sliver
+                        || prox.probes_miss(&q, tol)
+                        || !prox.triangle_within(q, tol, r_min)
+                    {
+                        blame(&mut bad, &m);
+                    } else {
+                        passed.insert(m);
+                    }
                 }
             }
-        }
-        directed.sort_unstable();
-        for group in directed.chunk_by(|e, f| (e.0, e.1) == (f.0, f.1)) {
-            if !matches!(group, [e, f] if e.2 != f.2) {
-                blame(&mut bad, &[group[0].0, group[0].1]);
+            if !one_fan(&mut link, false) {
+                bad.push(c);
             }
         }
-        // One fan at every vertex a moved triangle touches: a cluster's from its moved
-        // triangles, a fine vertex's from its mapped star.
-        let mut links: Vec<Vec<(u32, u32)>> = vec![Vec::new(); members.len()];
-        for m in &moved {
-            for k in 0..3 {
-                if m[k] as usize >= n {
-                    links[m[k] as usize - n].push((m[(k + 1) % 3], m[(k + 2) % 3]));
-                }
-            }
-        }
-        for (c, link) in links.iter_mut().enumerate() {
-            if active[c] && !one_fan(link, false) {
-                bad.push(c as u32);
-            }
-        }
-        touched.sort_unstable();
-        touched.dedup();
-        for &v in &touched {
-            let mut link: Vec<(u32, u32)> = Vec::new();
+        fine_near.sort_unstable();
+        fine_near.dedup();
+        for &v in &fine_near {
+            link.clear();
             let mut near: Vec<u32> = Vec::new();
-            for &t in &star[v as usize] {
-                let Some(m) = mapped(&active, &mesh.triangles[t as usize]) else {
-                    near.extend(mesh.triangles[t as usize].map(|x| image(&active, x)));
+            for &t in star(v) {
+                let tri = &mesh.triangles[t as usize];
+                let Some(m) = mapped(&active, tri) else {
+                    near.extend(tri.map(|x| image(&active, x)));
                     continue;
                 };
                 let k = m.iter().position(|&x| x == v).expect("v is a corner");
@@ -313,12 +314,32 @@ pub(super) fn coarsen(
                 blame(&mut bad, &near);
             }
         }
+        fine_near.clear();
+        bad.sort_unstable();
+        bad.dedup();
+        bad.retain(|&c| active[c as usize]);
         if bad.is_empty() {
             break;
         }
-        for c in bad {
+        for &c in &bad {
             active[c as usize] = false;
         }
+        // Next: the active clusters and the fine vertices next to those just left fine.
+        dirty.clear();
+        for &c in &bad {
+            for &v in &members[c as usize] {
+                for &t in star(v) {
+                    for &x in &mesh.triangles[t as usize] {
+                        match image(&active, x) {
+                            y if y as usize >= n => dirty.push(y - n as u32),
+                            y => fine_near.push(y),
+                        }
+                    }
+                }
+            }
+        }
+        dirty.sort_unstable();
+        dirty.dedup();
     }
     let taken: Vec<usize> = (0..members.len()).filter(|&c| active[c]).collect();
     if taken.is_empty() {
@@ -346,7 +367,7 @@ pub(super) fn coarsen(
     if pieces.swallowed(&old, &new) {
         return Err(Declined::Sweep);
     }
-    // Fine quadrics, summed per cluster.
+    // Each vertex's quadric (the planes of its triangles), summed per cluster.
     let mut fine = vec![Quadric::default(); n];
     for t in &mesh.triangles {
         let q = Quadric::plane(t.map(|v| mesh.positions[v as usize]));
@@ -362,6 +383,7 @@ pub(super) fn coarsen(
         quadric: Vec::new(),
         clusters: taken.len() as u64,
         removed: removed as u64,
+        cluster: Vec::new(),
     };
     for v in 0..n as u32 {
         let x = image(&active, v);
@@ -370,11 +392,13 @@ pub(super) fn coarsen(
             out.mesh.positions.push(mesh.positions[v as usize]);
             out.locked.push(locked[v as usize]);
             out.quadric.push(fine[v as usize]);
+            out.cluster.push(u32::MAX);
         } else if id[x as usize] == u32::MAX {
             let c = x as usize - n;
             id[x as usize] = out.mesh.positions.len() as u32;
             out.mesh.positions.push(point[c]);
             out.locked.push(false);
+            out.cluster.push(c as u32);
             out.quadric.push(
                 members[c]
                     .iter()
@@ -477,7 +501,7 @@ mod tests {
                 hi: dims.map(|d| d as usize),
             };
             let locked = vec![false; fine.positions.len()];
-            let out = coarsen(&fine, &locked, &block, &mut scratch, &opts())
+            let out = coarsen(&fine, &locked, &[], &block, &mut scratch, &opts())
                 .unwrap_or_else(|why| panic!("seed {seed}: declined, {why:?}"));
             let m = &out.mesh;
             assert_eq!(
@@ -545,7 +569,7 @@ mod tests {
         let run = |points: Vec<[DVec3; 2]>| {
             let pieces = Pieces::from_points(points);
             let mut scratch = Scratch::new(&cls, Some(&pieces), fine.triangles.len());
-            coarsen(&fine, &locked, &block, &mut scratch, &opts())
+            coarsen(&fine, &locked, &[], &block, &mut scratch, &opts())
         };
         assert_eq!(run(vec![[corner; 2]]).err(), Some(Declined::Sweep));
         let out = run(Vec::new()).expect("no piece in the way");
@@ -553,7 +577,7 @@ mod tests {
         assert!((winding(&places(&fine), corner) - 1.0).abs() < 1e-6);
         // Without the pieces the start stays fine.
         let mut scratch = Scratch::new(&cls, None, fine.triangles.len());
-        let none = coarsen(&fine, &locked, &block, &mut scratch, &opts());
+        let none = coarsen(&fine, &locked, &[], &block, &mut scratch, &opts());
         assert_eq!(none.err(), Some(Declined::NoPieces));
     }
 
@@ -569,7 +593,7 @@ mod tests {
             lo: [0; 3],
             hi: [20; 3],
         };
-        let out = coarsen(&fine, &locked, &block, &mut scratch, &opts()).unwrap();
+        let out = coarsen(&fine, &locked, &[], &block, &mut scratch, &opts()).unwrap();
         let kept: Vec<DVec3> = (0..out.mesh.positions.len())
             .filter(|&v| out.locked[v])
             .map(|v| out.mesh.positions[v])

@@ -93,6 +93,12 @@ impl State {
     /// closer than the test's reach is found: a point of one within that reach of the other
     /// lies in a cell the first is filed under and the second's widened box meets.
     pub(super) fn crossing_free(&self) -> bool {
+        self.conflicts(true).is_empty()
+    }
+
+    /// The pairs of live triangles that conflict ([`Self::crossing_free`]), lower id first;
+    /// only the first when `first`.
+    pub(super) fn conflicts(&self, first: bool) -> Vec<(u32, u32)> {
         let hash = self.filed();
         // Each live triangle's box and normal once, however many pairs it is in (indexed by
         // `slot`: the state's arrays also hold the many triangles gone before).
@@ -103,16 +109,24 @@ impl State {
             slot[t] = facets.len() as u32;
             facets.push((t, Facet::new((ids, ids.map(|x| self.pos[x as usize])))));
         }
-        let mut near = Vec::new();
-        facets.iter().all(|(t, me)| {
+        let (mut near, mut pairs) = (Vec::new(), Vec::new());
+        for (t, me) in &facets {
             hash.near(&me.at, &mut near);
             near.sort_unstable();
             near.dedup();
-            near.iter()
-                .filter(|&&u| u as usize > *t && slot[u as usize] != u32::MAX)
-                .map(|&u| &facets[slot[u as usize] as usize].1)
-                .all(|other| !me.meets(other))
-        })
+            for &u in &near {
+                if u as usize > *t
+                    && slot[u as usize] != u32::MAX
+                    && me.meets(&facets[slot[u as usize] as usize].1)
+                {
+                    pairs.push((*t as u32, u));
+                    if first {
+                        return pairs;
+                    }
+                }
+            }
+        }
+        pairs
     }
 
     /// [`Self::new`] with each vertex's quadric given (the sum of the planes of the start
