@@ -12,16 +12,16 @@
 //! - sweep: the fine triangles moved (O) and the new ones (N) both miss the swept volume, so the
 //!   winding number of O - N is constant on each of its pieces; the step is taken only when it
 //!   is zero at each ([`super::pieces::Pieces::swallowed`]), so no point of it is lost. Without
-//!   the pieces the start is not coarsened;
+//!   the pieces, or with too many in the step's box ([`SWEEP_BUDGET`]), the start stays fine;
 //! - topology: each cluster spans a contractible part of the surface (connected, Euler
-//!   characteristic 1); after mapping, every edge at a cluster has one triangle each way and
-//!   every vertex a moved triangle touches has one fan; and the patch's Euler characteristic is
+//!   characteristic 1); after mapping, every vertex a moved triangle touches has one fan (so
+//!   every edge at a cluster has one triangle each way); and the patch's Euler characteristic is
 //!   unchanged. A map of a surface that keeps orientation never raises the genus and never
 //!   splits or joins components here (a cluster is connected), so the same characteristic means
 //!   the same surface, a closed 2-manifold once the blocks are welded;
-//! - self-intersection: by the block's certificate ([`super::state::State::crossing_free`]);
-//!   the start is coarsened only in a pass that ends with it (a pass that tests every near
-//!   triangle starts fine).
+//! - self-intersection: not here; by the block's certificate at the end of a pass that tests
+//!   neighbours only, and for a pass that tests every near triangle by a check of the start
+//!   itself (`blocked::coarse_start`).
 //!
 //! A cluster whose triangles fail a local check is left fine and the checks run again on what
 //! changed, until none fails; a failed sweep or Euler check leaves the whole block fine. The
@@ -44,6 +44,10 @@ use crate::union_find::UnionFind;
 /// 99% of its triangles in T at n = 512 and 1500 (docs/perf-log.md, "A coarse start by surface
 /// nets"); at 8, 89-93%.
 const CELL: f64 = 4.0;
+
+/// Most solid angles (pieces in the box times triangles of O and N) the sweep check of one step
+/// may cost, about a tenth of a second.
+const SWEEP_BUDGET: usize = 20_000_000;
 
 /// Least twice-area of a moved triangle, voxel²: slivers are left fine.
 const MIN_AREA2: f64 = 1e-6;
@@ -70,6 +74,9 @@ pub(super) enum Declined {
     NoPieces,
     /// The step would change the winding number at a piece of the swept volume.
     Sweep,
+    /// So many pieces lie in the step's box that their winding numbers would cost more than
+    /// [`SWEEP_BUDGET`] (many rows at a small resolution): the collapses check them instead.
+    SweepCost,
     /// The patch's Euler characteristic would change.
     Euler,
 }
@@ -364,6 +371,11 @@ pub(super) fn coarsen(
     if 2 * removed != mesh.triangles.len() - triangles.len() {
         return Err(Declined::Euler);
     }
+    // Each piece with both points in the step's box costs a winding number over O and N.
+    let enclosed = pieces.enclosed_by(&old, &new);
+    if enclosed.saturating_mul(old.len() + new.len()) > SWEEP_BUDGET {
+        return Err(Declined::SweepCost);
+    }
     if pieces.swallowed(&old, &new) {
         return Err(Declined::Sweep);
     }
@@ -555,7 +567,7 @@ mod tests {
 
     /// The sweep check is wired in: the corners of a cube's coarse start cut into it, so a
     /// piece of the swept volume put in a corner declines the whole step, and the same step
-    /// without it leaves that point outside.
+    /// without it leaves that point outside; pieces too many to check decline it too.
     #[test]
     fn a_piece_the_step_would_leave_outside_declines_it() {
         let cls = boxed([12, 12, 12], [2.0; 3], [8.0; 3]);
@@ -572,6 +584,10 @@ mod tests {
             coarsen(&fine, &locked, &[], &block, &mut scratch, &opts())
         };
         assert_eq!(run(vec![[corner; 2]]).err(), Some(Declined::Sweep));
+        // So many pieces in the box that their winding numbers would cost too much: declined
+        // before any is computed.
+        let many = vec![[DVec3::splat(5.0); 2]; SWEEP_BUDGET / 300];
+        assert_eq!(run(many).err(), Some(Declined::SweepCost));
         let out = run(Vec::new()).expect("no piece in the way");
         assert!(winding(&places(&out.mesh), corner).abs() < 1e-6);
         assert!((winding(&places(&fine), corner) - 1.0).abs() < 1e-6);

@@ -92,6 +92,18 @@ impl Pieces {
         self.points.is_empty()
     }
 
+    /// How many pieces have both points in the box of `old` and `new`: those whose winding
+    /// number [`Self::swallowed`] may compute.
+    pub fn enclosed_by(&self, old: &[[DVec3; 3]], new: &[[DVec3; 3]]) -> usize {
+        let ((olo, ohi), (nlo, nhi)) = (bounds(old.as_flattened()), bounds(new.as_flattened()));
+        let (lo, hi) = (olo.min(nlo), ohi.max(nhi));
+        let inside = |p: DVec3| p.cmpge(lo).all() && p.cmple(hi).all();
+        self.points
+            .iter()
+            .filter(|[p, q]| inside(*p) && inside(*q))
+            .count()
+    }
+
     /// Whether replacing `old` by `new` (a closed surface O - N: they share their boundary; both
     /// missing the swept volume) may change the winding number at a point of a piece: true when
     /// O - N winds around a piece's first point, or when f64 cannot tell.
