@@ -417,21 +417,9 @@ mod tests {
     use crate::mesh::classify::test_support::random;
     use crate::mesh::manifold::Joined;
     use crate::simplify::band::HALF_DIAGONAL;
+    use crate::simplify::clusters::tests::{deep_and_far, opts, places};
     use crate::simplify::tests::{deep, in_volume, winding_number};
-    use crate::simplify::Tolerance;
     use crate::verify::bvh::Bvh;
-
-    fn opts() -> SimplifyOptions {
-        SimplifyOptions {
-            tolerance: Tolerance {
-                outside: 1.466,
-                inside: 1.466,
-            },
-            sweep: 1.486,
-            min_radius: 0.05,
-            target_triangles: 0,
-        }
-    }
 
     /// Rough random voxel sets cut into small blocks: the welded, simplified mesh is a closed
     /// 2-manifold whatever the block size; a block pass that may move its locked (seam)
@@ -557,21 +545,7 @@ mod tests {
             )]);
         for (n, cls) in sets.enumerate() {
             let joined = Joined::new(&cls);
-            let r = opts().tolerance.outside + 0.01;
-            let (mut inside, mut outside) = (Vec::new(), Vec::new());
-            for i in 0..22 {
-                for j in 0..20 {
-                    for k in 0..18 {
-                        let c = DVec3::new(i as f64, j as f64, k as f64) + 0.5;
-                        let own = crate::simplify::band::dist_to_centre;
-                        if cls.inside(i, j, k) && own(&cls, c, false, r).is_none() {
-                            inside.push(c);
-                        } else if !cls.inside(i, j, k) && own(&cls, c, true, r).is_none() {
-                            outside.push(c);
-                        }
-                    }
-                }
-            }
+            let (inside, outside) = deep_and_far(&cls, [22, 20, 18]);
             let pieces = Pieces::from_points(inside.iter().map(|&p| [p, p]).collect());
             for size in [8, 13, 64] {
                 let out = simplify_boundary(&joined, &cls, Some(&pieces), opts(), size, &|| false)
@@ -583,11 +557,7 @@ mod tests {
                     defects.is_manifold() && m.unpaired_edges().is_empty(),
                     "set {n}, blocks of {size}: {defects:?}"
                 );
-                let tris: Vec<[DVec3; 3]> = m
-                    .triangles
-                    .iter()
-                    .map(|t| t.map(|v| m.positions[v as usize]))
-                    .collect();
+                let tris = places(m);
                 let (health, _) = crate::verify::health::check(&tris, &Bvh::build(tris.clone(), 8));
                 assert_eq!(
                     health.self_intersecting_pairs, 0,

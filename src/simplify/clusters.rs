@@ -426,7 +426,7 @@ pub(super) fn coarsen(
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
     use crate::mesh::classify::test_support::{boxed, random};
     use crate::mesh::classify::Classifier;
@@ -436,7 +436,8 @@ mod tests {
     use crate::simplify::pieces::{winding, Pieces};
     use crate::simplify::Tolerance;
 
-    fn opts() -> SimplifyOptions {
+    /// The default radii (ε = 0.6h): T's half-width 1.466 voxels, the sweep radius 1.486.
+    pub(in crate::simplify) fn opts() -> SimplifyOptions {
         SimplifyOptions {
             tolerance: Tolerance {
                 outside: 1.466,
@@ -448,7 +449,7 @@ mod tests {
         }
     }
 
-    fn places(m: &Mesh) -> Vec<[DVec3; 3]> {
+    pub(in crate::simplify) fn places(m: &Mesh) -> Vec<[DVec3; 3]> {
         m.triangles
             .iter()
             .map(|t| t.map(|v| m.positions[v as usize]))
@@ -472,7 +473,10 @@ mod tests {
 
     /// Voxel centres (grid units) inside the voxels and out of T: where the swept volume may
     /// be. And those outside them and out of T: where the outside is.
-    fn deep_and_far(cls: &Classifier, dims: [u32; 3]) -> (Vec<DVec3>, Vec<DVec3>) {
+    pub(in crate::simplify) fn deep_and_far(
+        cls: &Classifier,
+        dims: [u32; 3],
+    ) -> (Vec<DVec3>, Vec<DVec3>) {
         let (mut deep, mut far) = (Vec::new(), Vec::new());
         let r = opts().tolerance.outside + 0.01;
         for x in 0..dims[0] {
