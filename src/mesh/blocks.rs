@@ -11,14 +11,10 @@
 //! Triangles are those of `extract::extract` (the same quads, split along the same diagonal),
 //! so the blocks' patches together are exactly the whole start mesh.
 
-use std::collections::HashMap;
-use std::hash::BuildHasherDefault;
-
 use glam::DVec3;
 
 use crate::mesh::classify::VoxelSet;
 use crate::mesh::Mesh;
-use crate::voxels::{pack_cell, KeyHasher};
 
 /// A box of lattice corners [lo, hi) (grid units).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -32,6 +28,11 @@ impl Block {
     /// box's planes (off every face of it).
     pub fn strictly_holds(&self, p: DVec3) -> bool {
         (0..3).all(|a| p[a] > self.lo[a] as f64 && p[a] < self.hi[a] as f64)
+    }
+
+    /// Whether point `p` lies on one of the box's planes (a coordinate equal to a bound).
+    pub fn on_faces(&self, p: DVec3) -> bool {
+        (0..3).any(|a| p[a] == self.lo[a] as f64 || p[a] == self.hi[a] as f64)
     }
 }
 
@@ -58,6 +59,32 @@ pub fn blocks(dims: [usize; 3], size: usize) -> Vec<Block> {
     out
 }
 
+/// About how many faces of the voxel boundary block `b` owns, from a sample of its voxel rows
+/// along x: in every `ESTIMATE_STRIDE`-th row along y and along z, the faces between its voxels
+/// and those between it and the rows below it along y and along z, scaled by the stride
+/// squared. For ordering the blocks' work, costliest first; about 1% of extracting them.
+pub fn faces_estimate(set: &dyn VoxelSet, b: &Block) -> usize {
+    const ESTIMATE_STRIDE: usize = 4;
+    let (x0, x1) = (b.lo[0] as isize - 1, b.hi[0] as isize);
+    let len = (x1 - x0) as usize;
+    let (mut row, mut below_y, mut below_z) =
+        (vec![false; len], vec![false; len], vec![false; len]);
+    let differ = |a: &[bool], b: &[bool]| a.iter().zip(b).filter(|(a, b)| a != b).count();
+    let mut faces = 0;
+    for k in (b.lo[2]..b.hi[2]).step_by(ESTIMATE_STRIDE) {
+        for j in (b.lo[1]..b.hi[1]).step_by(ESTIMATE_STRIDE) {
+            let (j, k) = (j as isize, k as isize);
+            set.fill_box([x0, j, k], [x1, j + 1, k + 1], &mut row);
+            set.fill_box([x0, j - 1, k], [x1, j, k + 1], &mut below_y);
+            set.fill_box([x0, j, k - 1], [x1, j + 1, k], &mut below_z);
+            // Element 0 is the voxel before the block: faces on plane x = lo are the block's.
+            faces += differ(&row[..len - 1], &row[1..]);
+            faces += differ(&row[1..], &below_y[1..]) + differ(&row[1..], &below_z[1..]);
+        }
+    }
+    faces * ESTIMATE_STRIDE * ESTIMATE_STRIDE
+}
+
 /// One block's part of the voxel boundary: its faces as triangles, and which vertices lie on
 /// the patch's open edges (locked).
 #[derive(Clone, Debug, Default)]
@@ -66,51 +93,39 @@ pub struct Patch {
     pub locked: Vec<bool>,
 }
 
-/// The voxels of a block and the one-voxel layer below it, for the faces the block owns.
-struct Cells {
-    lo: [isize; 3],
-    d: [usize; 3],
-    inside: Vec<bool>,
-}
-
-impl Cells {
-    fn get(&self, i: usize, j: usize, k: usize) -> bool {
-        // (i, j, k) in grid voxels; the box starts one below the block.
-        let l = [i, j, k].map(|x| x as isize);
-        let at = [0, 1, 2].map(|a| (l[a] - self.lo[a]) as usize);
-        self.inside[(at[2] * self.d[1] + at[1]) * self.d[0] + at[0]]
-    }
-}
-
 /// The patch of the boundary of `set` that block `b` owns.
 pub fn extract_block(set: &dyn VoxelSet, b: &Block) -> Patch {
     // Voxels lo - 1 .. hi along each axis: faces on planes lo..hi lie between them.
     let lo = b.lo.map(|x| x as isize - 1);
     let hi = b.hi.map(|x| x as isize);
     let d = [0, 1, 2].map(|a| (hi[a] - lo[a]) as usize);
-    let mut cells = Cells {
-        lo,
-        d,
-        inside: vec![false; d[0] * d[1] * d[2]],
-    };
-    set.fill_box(lo, hi, &mut cells.inside);
-    let mut out = Builder::default();
-    if !cells.inside.iter().any(|&c| c) {
+    let mut inside = vec![false; d[0] * d[1] * d[2]];
+    set.fill_box(lo, hi, &mut inside);
+    if !inside.iter().any(|&c| c) {
         return Patch::default();
     }
     let [x0, y0, z0] = b.lo;
     let [x1, y1, z1] = b.hi;
-    let v = |x: usize| x as isize;
-    // Voxel (i, j, k) with i, j, k >= lo - 1; `at` with a possibly negative index reads outside.
-    let at = |i: isize, j: isize, k: isize| {
-        i >= lo[0] && j >= lo[1] && k >= lo[2] && { cells.get(i as usize, j as usize, k as usize) }
+    let mut out = Builder::new(b);
+    // Row (y0 - 1 + j, z0 - 1 + k) of `inside`: element t is voxel (x0 - 1 + t, ..).
+    let row = |j: usize, k: usize| {
+        let at = (k * d[1] + j) * d[0];
+        &inside[at..at + d[0]]
     };
     for k in z0..z1 {
+        out.slab(k);
         for j in y0..y1 {
+            let (jj, kk) = (j + 1 - y0, k + 1 - z0);
+            let (here, below_z, below_y) = (row(jj, kk), row(jj, kk - 1), row(jj - 1, kk));
+            // A row and the two below it all of one class hold no face.
+            if here == below_z && here == below_y && here.iter().all(|&c| c == here[0]) {
+                continue;
+            }
             for i in x0..x1 {
-                let here = at(v(i), v(j), v(k));
+                let t = i + 1 - x0;
+                let h = here[t];
                 // Plane z = k, between voxels (i, j, k - 1) and (i, j, k).
-                match (at(v(i), v(j), v(k) - 1), here) {
+                match (below_z[t], h) {
                     (true, false) => {
                         out.quad([(i, j, k), (i + 1, j, k), (i + 1, j + 1, k), (i, j + 1, k)])
                     }
@@ -120,7 +135,7 @@ pub fn extract_block(set: &dyn VoxelSet, b: &Block) -> Patch {
                     _ => {}
                 }
                 // Plane x = i, between voxels (i - 1, j, k) and (i, j, k).
-                match (at(v(i) - 1, v(j), v(k)), here) {
+                match (here[t - 1], h) {
                     (true, false) => {
                         out.quad([(i, j, k), (i, j + 1, k), (i, j + 1, k + 1), (i, j, k + 1)])
                     }
@@ -130,7 +145,7 @@ pub fn extract_block(set: &dyn VoxelSet, b: &Block) -> Patch {
                     _ => {}
                 }
                 // Plane y = j, between voxels (i, j - 1, k) and (i, j, k).
-                match (at(v(i), v(j) - 1, v(k)), here) {
+                match (below_y[t], h) {
                     (true, false) => {
                         out.quad([(i, j, k), (i, j, k + 1), (i + 1, j, k + 1), (i + 1, j, k)])
                     }
@@ -145,23 +160,55 @@ pub fn extract_block(set: &dyn VoxelSet, b: &Block) -> Patch {
     out.finish()
 }
 
-#[derive(Default)]
+/// The patch as it is built: corners numbered in order of first use, found through the two
+/// z-planes of corners the current layer of voxels touches, and each unit edge's uses counted
+/// (open edges, used by one face, lie on the block's box).
 struct Builder {
     mesh: Mesh,
-    corners: HashMap<u64, u32, BuildHasherDefault<KeyHasher>>,
+    /// The block's lowest corner and its corner planes' width.
+    lo: [usize; 3],
+    w: usize,
+    /// Corner ids on planes z = `z` and z + 1 (u32::MAX: none yet).
+    planes: [Vec<u32>; 2],
+    z: usize,
+    /// Per corner and axis: the unit edge from it along the axis, its far corner and its uses.
+    edges: Vec<[(u32, u8); 3]>,
 }
 
 impl Builder {
+    fn new(b: &Block) -> Self {
+        let (w, h) = (b.hi[0] - b.lo[0] + 1, b.hi[1] - b.lo[1] + 1);
+        Builder {
+            mesh: Mesh::default(),
+            lo: b.lo,
+            w,
+            planes: [vec![u32::MAX; w * h], vec![u32::MAX; w * h]],
+            z: b.lo[2],
+            edges: Vec::new(),
+        }
+    }
+
+    /// The layer of voxels at z = `k` is next: its faces' corners lie on planes k and k + 1.
+    fn slab(&mut self, k: usize) {
+        if k != self.z {
+            debug_assert_eq!(k, self.z + 1);
+            self.planes.swap(0, 1);
+            self.planes[1].fill(u32::MAX);
+            self.z = k;
+        }
+    }
+
     fn corner(&mut self, (i, j, k): (usize, usize, usize)) -> u32 {
-        let key = pack_cell([i as i64, j as i64, k as i64]);
-        let next = self.mesh.positions.len() as u32;
-        let id = *self.corners.entry(key).or_insert(next);
-        if id == next {
+        let at = (j - self.lo[1]) * self.w + i - self.lo[0];
+        let slot = &mut self.planes[k - self.z][at];
+        if *slot == u32::MAX {
+            *slot = self.mesh.positions.len() as u32;
             self.mesh
                 .positions
                 .push(DVec3::new(i as f64, j as f64, k as f64));
+            self.edges.push([(u32::MAX, 0); 3]);
         }
-        id
+        *slot
     }
 
     /// A unit square with corners counter-clockwise seen from outside (as `extract::extract`).
@@ -169,22 +216,29 @@ impl Builder {
         let v = c.map(|x| self.corner(x));
         self.mesh.triangles.push([v[0], v[1], v[2]]);
         self.mesh.triangles.push([v[0], v[2], v[3]]);
+        for m in 0..4 {
+            let (p, q) = (c[m], c[(m + 1) % 4]);
+            let (a, b) = ([p.0, p.1, p.2], [q.0, q.1, q.2]);
+            let axis = (0..3).find(|&x| a[x] != b[x]).expect("a unit edge");
+            let (low, high) = if a[axis] < b[axis] {
+                (m, (m + 1) % 4)
+            } else {
+                ((m + 1) % 4, m)
+            };
+            let e = &mut self.edges[v[low] as usize][axis];
+            *e = (v[high], e.1 + 1);
+        }
     }
 
-    /// The patch, with the vertices of its open edges (used by one triangle) locked.
+    /// The patch, with the vertices of its open edges (used by one face) locked.
     fn finish(self) -> Patch {
-        let mut uses: HashMap<(u32, u32), u8, BuildHasherDefault<KeyHasher>> = HashMap::default();
-        for t in &self.mesh.triangles {
-            for e in 0..3 {
-                let (a, b) = (t[e], t[(e + 1) % 3]);
-                *uses.entry((a.min(b), a.max(b))).or_default() += 1;
-            }
-        }
         let mut locked = vec![false; self.mesh.positions.len()];
-        for ((a, b), n) in uses {
-            if n == 1 {
-                locked[a as usize] = true;
-                locked[b as usize] = true;
+        for (v, edges) in self.edges.iter().enumerate() {
+            for &(far, uses) in edges {
+                if uses == 1 {
+                    locked[v] = true;
+                    locked[far as usize] = true;
+                }
             }
         }
         Patch {
@@ -242,7 +296,22 @@ mod tests {
                         / 3.0;
                     assert!((0..3).all(|a| c[a] >= b.lo[a] as f64 - 0.5 && c[a] <= b.hi[a] as f64));
                 }
-                // Locked vertices lie on the block's box.
+                // Locked vertices are those of the patch's open edges (one triangle each), and
+                // lie on the block's box.
+                let mut uses: std::collections::HashMap<(u32, u32), usize> = Default::default();
+                for t in &patch.mesh.triangles {
+                    for e in 0..3 {
+                        let (a, b) = (t[e], t[(e + 1) % 3]);
+                        *uses.entry((a.min(b), a.max(b))).or_default() += 1;
+                    }
+                }
+                let mut open = vec![false; patch.locked.len()];
+                for ((a, b), n) in uses {
+                    if n == 1 {
+                        (open[a as usize], open[b as usize]) = (true, true);
+                    }
+                }
+                assert_eq!(open, patch.locked, "seed {seed}, blocks of {size}");
                 for (v, &l) in patch.locked.iter().enumerate() {
                     let p = patch.mesh.positions[v];
                     if l {
@@ -259,6 +328,28 @@ mod tests {
                 assert!(locked_edges > 0, "seed {seed}: no seams");
             }
         }
+    }
+
+    /// The estimate of a block's faces follows their count: within 30% of it for the blocks
+    /// with many faces of a ball, 10% over all, and none for a block the surface misses.
+    #[test]
+    fn the_faces_estimate_follows_the_faces() {
+        let dims = [96, 90, 84];
+        let cls = crate::mesh::classify::test_support::ball(dims, [47.3, 44.1, 41.7], 38.2);
+        let (mut estimated, mut counted) = (0, 0);
+        for b in blocks(dims.map(|x| x as usize), 32) {
+            let faces = extract_block(&cls, &b).mesh.triangles.len() / 2;
+            let guess = faces_estimate(&cls, &b);
+            if faces == 0 {
+                assert_eq!(guess, 0, "{b:?}");
+            } else if faces >= 1000 {
+                let ratio = guess as f64 / faces as f64;
+                assert!((0.7..1.3).contains(&ratio), "{b:?}: {guess} for {faces}");
+            }
+            (estimated, counted) = (estimated + guess, counted + faces);
+        }
+        let ratio = estimated as f64 / counted as f64;
+        assert!((0.9..1.1).contains(&ratio), "{estimated} for {counted}");
     }
 
     #[test]

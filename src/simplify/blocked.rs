@@ -21,8 +21,10 @@
 //! The output does not depend on the thread count: each block is simplified on its own, in one
 //! fixed order, blocks are welded in block order, and the seam pass is deterministic.
 
-use std::collections::{HashMap, HashSet};
+use std::collections::{BTreeMap, HashMap, HashSet};
 use std::hash::BuildHasherDefault;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Mutex;
 
 use glam::DVec3;
 use rayon::prelude::*;
@@ -30,17 +32,22 @@ use rayon::prelude::*;
 use super::band::{pack_cell, KeyHasher};
 use super::pieces::Pieces;
 use super::quadric::Quadric;
-use super::queue::Queue;
+use super::queue::{Candidate, Queue};
 use super::state::{park, Crossings, Reject, Scratch, State};
 use super::{all_edges, check_radii, run_batches, SimplifyOptions, SimplifyStats};
 use super::{clusters, discs};
-use crate::mesh::blocks::{blocks, extract_block, Block, Patch};
+use crate::mesh::blocks::{blocks, extract_block, faces_estimate, Block, Patch};
 use crate::mesh::classify::{Classifier, VoxelSet};
 use crate::mesh::Mesh;
 
 /// Voxels along each edge of a block: its fine mesh (about 2·B² start triangles where the
 /// surface crosses it) stays in cache, and blocks are few enough for the seams to be short.
 pub const BLOCK_VOXELS: usize = 128;
+
+/// After the blocks, groups of 2×2×2 of them (then of those groups, and so on) are simplified
+/// in parallel while a level has at least this many groups; the seam pass takes what is left.
+/// A fixed count, so that the levels, like the output, do not depend on the thread count.
+pub const GROUPS_AT_LEAST: usize = 8;
 
 /// What the block by block simplifier did.
 #[derive(Clone, Debug)]
@@ -51,15 +58,18 @@ pub struct Simplified {
     pub triangles_start: u64,
 }
 
-/// One block after its pass: its live mesh, each vertex's quadric, which vertices are locked,
-/// and the edges left to the seam pass for the border rule (ids of `mesh`).
+/// One block (or group of blocks) after its pass: its box, its live mesh, each vertex's
+/// quadric, which vertices are locked, the edges left to a later pass for the border rule (ids
+/// of `mesh`), and its share of a target count (0: none).
 struct Done {
+    block: Block,
     mesh: Mesh,
     quadric: Vec<Quadric>,
     locked: Vec<bool>,
     border: Vec<(u32, u32)>,
     stats: SimplifyStats,
     triangles_start: u64,
+    target: usize,
 }
 
 /// Simplify the boundary of `set` (the joined voxels of `cls`) block by block, then along the
@@ -75,12 +85,32 @@ pub fn simplify_boundary(
     simplify_boundary_with(set, cls, pieces, opts, block, Locks::Honour, stop)
 }
 
-/// Whether a block's pass keeps its locked vertices (the tests show what breaks otherwise).
+/// Whether a block's (and a group's) pass keeps its locked vertices (the tests show what
+/// breaks otherwise).
 #[derive(Clone, Copy, PartialEq, Eq)]
 enum Locks {
     Honour,
     #[cfg(test)]
     Ignore,
+    /// Blocks keep theirs; groups free every seam vertex, those on their own faces too.
+    #[cfg(test)]
+    IgnoreInGroups,
+}
+
+impl Locks {
+    fn in_blocks(self) -> bool {
+        match self {
+            Locks::Honour => true,
+            #[cfg(test)]
+            Locks::Ignore => false,
+            #[cfg(test)]
+            Locks::IgnoreInGroups => true,
+        }
+    }
+
+    fn in_groups(self) -> bool {
+        self == Locks::Honour
+    }
 }
 
 fn simplify_boundary_with(
@@ -95,7 +125,7 @@ fn simplify_boundary_with(
     check_radii(&opts);
     let list = blocks(set.dims(), block);
     // With a target count, each block stops at its share of it (by start triangles), counted
-    // first; the seam pass then stops at the target itself.
+    // first; groups stop at their blocks' shares together, the seam pass at the target itself.
     let shares = (opts.target_triangles > 0).then(|| {
         let counts: Vec<usize> = list
             .par_iter()
@@ -107,70 +137,99 @@ fn simplify_boundary_with(
             .map(|&c| (opts.target_triangles * c).div_ceil(total))
             .collect::<Vec<_>>()
     });
+    // The costliest blocks first, by a sample of their faces, so that none of them is left
+    // to run alone at the end.
+    let cost: Vec<usize> = list.par_iter().map(|b| faces_estimate(set, b)).collect();
     // Progress for long runs: a line at every tenth of the blocks.
     let finished = std::sync::atomic::AtomicUsize::new(0);
     let tenth = list.len().div_ceil(10).max(1);
-    let done: Vec<Option<Done>> = list
-        .par_iter()
-        .enumerate()
-        .map(|(n, b)| {
-            if stop() {
-                return None;
+    let done = largest_first(&cost, |n| {
+        if stop() {
+            return None;
+        }
+        let b = &list[n];
+        let target = shares.as_ref().map_or(0, |s| s[n]);
+        let patch = || {
+            let mut patch = extract_block(set, b);
+            if !locks.in_blocks() {
+                patch.locked.fill(false);
             }
-            let target = shares.as_ref().map_or(0, |s| s[n]);
-            let patch = || {
-                let mut patch = extract_block(set, b);
-                if locks != Locks::Honour {
-                    patch.locked.fill(false);
-                }
-                patch
-            };
-            // Crossings tested against the neighbours only, the result certified; where it
-            // holds a crossing pair, the block again with every near triangle tested.
-            let pass =
-                |crossings| simplify_block(patch(), b, cls, pieces, opts, target, crossings, stop);
-            let out = pass(Crossings::Neighbours).unwrap_or_else(|| {
-                let mut done = pass(Crossings::Near).expect("a pass that tests every near pair");
-                done.stats.blocks_redone += 1;
-                done
-            });
-            let k = finished.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
-            if k % tenth == 0 && k < list.len() {
-                tracing::info!("simplified {k} of {} blocks", list.len());
-            }
-            Some(out)
+            patch
+        };
+        // Crossings tested against the neighbours only, the result certified; where it holds
+        // a crossing pair, the block again with every near triangle tested.
+        let pass =
+            |crossings| simplify_block(patch(), b, cls, pieces, opts, target, crossings, stop);
+        let out = pass(Crossings::Neighbours).unwrap_or_else(|| {
+            let mut done = pass(Crossings::Near).expect("a pass that tests every near pair");
+            done.stats.blocks_redone += 1;
+            done
+        });
+        let k = finished.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
+        if k % tenth == 0 && k < list.len() {
+            tracing::info!("simplified {k} of {} blocks", list.len());
+        }
+        Some(out)
+    });
+    let mut done: Vec<Done> = done.into_iter().collect::<Option<Vec<_>>>()?;
+    let triangles_start = done.iter().map(|d| d.triangles_start).sum::<u64>();
+    let mut size = block;
+    loop {
+        if stop() {
+            return None;
+        }
+        let what = if size == block { "blocks" } else { "groups" };
+        tracing::info!(
+            "{} {what} of {size} voxels simplified: {triangles_start} start triangles down to {}",
+            done.len(),
+            done.iter().map(|d| d.mesh.triangles.len()).sum::<usize>()
+        );
+        let groups = groups(done, 2 * size);
+        if groups.len() < GROUPS_AT_LEAST {
+            done = groups.into_iter().flatten().collect();
+            break;
+        }
+        size *= 2;
+        let cost: Vec<usize> = groups
+            .iter()
+            .map(|g| g.iter().map(|d| d.mesh.triangles.len()).sum())
+            .collect();
+        let groups: Vec<Mutex<Option<Vec<Done>>>> =
+            groups.into_iter().map(|g| Mutex::new(Some(g))).collect();
+        done = largest_first(&cost, |n| {
+            let members = groups[n]
+                .lock()
+                .expect("one user")
+                .take()
+                .expect("taken once");
+            simplify_group(members, cls, pieces, opts, locks, stop)
         })
-        .collect();
-    let done: Vec<Done> = done.into_iter().collect::<Option<Vec<_>>>()?;
-    if stop() {
-        return None;
+        .into_iter()
+        .collect::<Option<Vec<_>>>()?;
     }
-    let (mesh, quadric, seam, border, mut stats, triangles_start) = weld(done);
+    let Welded {
+        mesh,
+        quadric,
+        seam,
+        border,
+        mut stats,
+    } = weld(done);
     tracing::info!(
-        "blocks simplified: {triangles_start} start triangles down to {}; simplifying along the seams",
+        "simplifying along the seams: {} triangles",
         mesh.triangles.len()
     );
     if stats.blocks_redone > 0 {
         tracing::info!(
-            "{} of {} blocks simplified twice: their first pass ended with two triangles crossing",
-            stats.blocks_redone,
-            list.len()
+            "{} of the blocks and groups simplified twice: their first pass ended with two \
+             triangles crossing",
+            stats.blocks_redone
         );
     }
     let s = State::with_quadrics(mesh, Some(quadric));
     // Edges at the seams (and those the border rule left) are tried again; every other edge
     // was tried last in its block on the same triangles around it, so it is parked until a
     // collapse changes them.
-    let border: HashSet<(u32, u32)> = border.into_iter().collect();
-    let (mut queued, mut parked) = (Vec::new(), HashMap::new());
-    for c in all_edges(&s) {
-        let (a, b) = (c.a, c.b);
-        if seam[a as usize] || seam[b as usize] || border.contains(&(a.min(b), a.max(b))) {
-            queued.push(c);
-        } else {
-            park(&mut parked, a, b);
-        }
-    }
+    let (queued, parked) = seeds(&s, &seam, &border, |_| true);
     let s = run_batches(s, Queue::new(queued), parked, cls, pieces, opts, stop)?;
     stats.add(&s.stats);
     Some(Simplified {
@@ -178,6 +237,147 @@ fn simplify_boundary_with(
         stats,
         triangles_start,
     })
+}
+
+/// Runs `job(i)` for every i in 0..cost.len() on the pool's threads, costliest first (each
+/// thread takes the next one as it finishes one, so the longest are not left to the end), and
+/// returns the results in index order: the same whatever the thread count.
+fn largest_first<T: Send>(cost: &[usize], job: impl Fn(usize) -> T + Sync) -> Vec<T> {
+    let mut order: Vec<usize> = (0..cost.len()).collect();
+    order.sort_by_key(|&i| (std::cmp::Reverse(cost[i]), i));
+    let next = AtomicUsize::new(0);
+    let slots: Vec<Mutex<Option<T>>> = (0..cost.len()).map(|_| Mutex::new(None)).collect();
+    rayon::scope(|scope| {
+        for _ in 0..rayon::current_num_threads().min(cost.len()) {
+            scope.spawn(|_| {
+                while let Some(&i) = order.get(next.fetch_add(1, Ordering::Relaxed)) {
+                    let out = job(i);
+                    *slots[i].lock().expect("one writer") = Some(out);
+                }
+            });
+        }
+    });
+    slots
+        .into_iter()
+        .map(|m| m.into_inner().expect("no panic").expect("every job ran"))
+        .collect()
+}
+
+/// `done` in groups of up to 2×2×2 by the boxes of `size` voxels their lowest corners fall
+/// in, groups in z, y, x order and each group's members in their order.
+fn groups(done: Vec<Done>, size: usize) -> Vec<Vec<Done>> {
+    let mut by: BTreeMap<[usize; 3], Vec<Done>> = BTreeMap::new();
+    for d in done {
+        let [x, y, z] = d.block.lo.map(|c| c / size);
+        by.entry([z, y, x]).or_default().push(d);
+    }
+    by.into_values().collect()
+}
+
+/// The candidates of a pass that starts from meshes already simplified: edges with both ends
+/// free (`free`) that touch a seam vertex or were left by the border rule are queued; every
+/// other edge was tried last on the same triangles around it, so it is parked until a collapse
+/// changes them.
+fn seeds(
+    s: &State,
+    seam: &[bool],
+    border: &[(u32, u32)],
+    free: impl Fn(u32) -> bool,
+) -> (Vec<Candidate>, HashMap<u32, Vec<u32>>) {
+    let border: HashSet<(u32, u32), BuildHasherDefault<KeyHasher>> =
+        border.iter().copied().collect();
+    let (mut queued, mut parked) = (Vec::new(), HashMap::new());
+    for c in all_edges(s) {
+        let (a, b) = (c.a, c.b);
+        if !free(a) || !free(b) {
+            continue;
+        }
+        if seam[a as usize] || seam[b as usize] || border.contains(&(a.min(b), a.max(b))) {
+            queued.push(c);
+        } else {
+            park(&mut parked, a, b);
+        }
+    }
+    (queued, parked)
+}
+
+/// A group of blocks (or of groups) welded and simplified as one block of their joint box:
+/// the seam vertices inside the box are free now, those on its faces stay locked. Crossings
+/// tested against the neighbours only and certified at the end, as for a block; the welded
+/// start holds no crossing pair (each member's is certified, and members meet only at shared
+/// locked vertices and edges), so a pass done again from it testing every near triangle
+/// cannot fail. None when `stop` said yes.
+fn simplify_group(
+    members: Vec<Done>,
+    cls: &Classifier,
+    pieces: Option<&Pieces>,
+    opts: SimplifyOptions,
+    locks: Locks,
+    stop: &(dyn Fn() -> bool + Sync),
+) -> Option<Done> {
+    let mut block = members[0].block;
+    for m in &members {
+        for a in 0..3 {
+            block.lo[a] = block.lo[a].min(m.block.lo[a]);
+            block.hi[a] = block.hi[a].max(m.block.hi[a]);
+        }
+    }
+    let target = members.iter().map(|m| m.target).sum();
+    let triangles_start = members.iter().map(|m| m.triangles_start).sum();
+    let Welded {
+        mesh,
+        quadric,
+        seam,
+        border,
+        mut stats,
+    } = weld(members);
+    stats.groups += 1;
+    let mut locked: Vec<bool> = seam
+        .iter()
+        .zip(&mesh.positions)
+        .map(|(&s, &p)| s && block.on_faces(p))
+        .collect();
+    if !locks.in_groups() {
+        locked.fill(false);
+    }
+    let pass = |crossings| {
+        let mut s = State::unfiled(mesh.clone(), Some(quadric.clone()));
+        s.crossings = crossings;
+        let (queued, parked) = seeds(&s, &seam, &border, |v| !locked[v as usize]);
+        let mut scratch = Scratch::new(cls, pieces, s.tris.len());
+        let heap = Queue::new(queued);
+        let border = run_block(
+            &mut s,
+            heap,
+            parked,
+            &mut scratch,
+            &locked,
+            &block,
+            &opts,
+            target,
+            false,
+            stop,
+        );
+        if stop() {
+            return Err(true);
+        }
+        if crossings == Crossings::Neighbours && !s.crossing_free() {
+            return Err(false);
+        }
+        Ok(finish(&s, &locked, border, block, triangles_start, target))
+    };
+    let mut out = match pass(Crossings::Neighbours) {
+        Ok(out) => out,
+        Err(true) => return None,
+        Err(false) => {
+            let mut out = pass(Crossings::Near).ok()?;
+            out.stats.blocks_redone += 1;
+            out
+        }
+    };
+    stats.add(&out.stats);
+    out.stats = stats;
+    Some(out)
 }
 
 /// One block's pass: candidates cheapest first, one at a time, none with a locked end, each
@@ -198,21 +398,58 @@ fn simplify_block(
     let triangles_start = mesh.triangles.len() as u64;
     if mesh.triangles.is_empty() {
         return Some(Done {
+            block: *block,
             mesh,
             quadric: Vec::new(),
             locked,
             border: Vec::new(),
             stats: SimplifyStats::default(),
             triangles_start,
+            target,
         });
     }
     let mut scratch = Scratch::new(cls, pieces, mesh.triangles.len());
     let (mut s, locked) = coarse_start(&mesh, &locked, block, &mut scratch, &opts, crossings)
         .unwrap_or_else(|| (State::unfiled(mesh, None), locked));
     s.crossings = crossings;
-    let free = |c: &super::queue::Candidate| !locked[c.a as usize] && !locked[c.b as usize];
-    let mut heap = Queue::new(all_edges(&s).into_iter().filter(free).collect());
-    let mut parked = HashMap::new();
+    let free = |c: &Candidate| !locked[c.a as usize] && !locked[c.b as usize];
+    let heap = Queue::new(all_edges(&s).into_iter().filter(free).collect());
+    let border = run_block(
+        &mut s,
+        heap,
+        HashMap::new(),
+        &mut scratch,
+        &locked,
+        block,
+        &opts,
+        target,
+        true,
+        stop,
+    );
+    if crossings == Crossings::Neighbours && !s.crossing_free() {
+        return None;
+    }
+    Some(finish(&s, &locked, border, *block, triangles_start, target))
+}
+
+/// The collapses of one block's (or group's) pass, one at a time from `heap`, until none is
+/// left, `target` triangles are reached or `stop` says yes; with `discs`, the disc patches are
+/// remeshed once the collapses that keep the surface are done. Returns the edges whose last
+/// outcome was the border rule.
+#[allow(clippy::too_many_arguments)]
+fn run_block(
+    s: &mut State,
+    mut heap: Queue,
+    mut parked: HashMap<u32, Vec<u32>>,
+    scratch: &mut Scratch,
+    locked: &[bool],
+    block: &Block,
+    opts: &SimplifyOptions,
+    target: usize,
+    discs: bool,
+    stop: &(dyn Fn() -> bool + Sync),
+) -> HashSet<(u32, u32), BuildHasherDefault<KeyHasher>> {
+    let free = |c: &Candidate| !locked[c.a as usize] && !locked[c.b as usize];
     // Edges whose last outcome was the border rule.
     let mut border: HashSet<(u32, u32), BuildHasherDefault<KeyHasher>> = HashSet::default();
     // The border rule, before the costly checks: every moved triangle's vertex locked or
@@ -232,17 +469,17 @@ fn simplify_block(
     let mut tried = 0u32;
     // Disc patches are remeshed once, when the collapses that keep the surface are done (the
     // cost-0 FIFO first empties: docs/design.md, "Disc patches").
-    let mut discs_done = false;
+    let mut discs_done = !discs;
     loop {
         if !discs_done && heap.zero.is_empty() {
             discs_done = true;
             let stopped = discs::remesh_discs(
-                &mut s,
+                s,
                 &mut heap,
                 &mut parked,
-                &mut scratch,
-                &opts,
-                &locked,
+                scratch,
+                opts,
+                locked,
                 target,
                 in_box,
                 stop,
@@ -261,7 +498,7 @@ fn simplify_block(
         }
         let region = s.region(c.a, c.b);
         let outcome = region
-            .check_moving(&mut scratch, &opts, region.target(), in_box)
+            .check_moving(scratch, opts, region.target(), in_box)
             .and_then(|plan| {
                 if !plan.in_plane {
                     s.file();
@@ -285,9 +522,19 @@ fn simplify_block(
             break;
         }
     }
-    if crossings == Crossings::Neighbours && !s.crossing_free() {
-        return None;
-    }
+    border
+}
+
+/// A pass's result as its live mesh (compacted), with each vertex's quadric and lock and the
+/// border rule's edges carried over.
+fn finish(
+    s: &State,
+    locked: &[bool],
+    border: HashSet<(u32, u32), BuildHasherDefault<KeyHasher>>,
+    block: Block,
+    triangles_start: u64,
+    target: usize,
+) -> Done {
     let (mesh, map) = s.compact_with_map();
     let mut quadric = vec![Quadric::default(); mesh.positions.len()];
     let mut kept_locked = vec![false; mesh.positions.len()];
@@ -297,21 +544,24 @@ fn simplify_block(
             kept_locked[new as usize] = locked[old];
         }
     }
-    let border = border
+    let mut border: Vec<(u32, u32)> = border
         .into_iter()
         .filter_map(|(a, b)| {
             let (a, b) = (map[a as usize], map[b as usize]);
             (a != u32::MAX && b != u32::MAX).then_some((a.min(b), a.max(b)))
         })
         .collect();
-    Some(Done {
+    border.sort_unstable();
+    Done {
+        block,
         mesh,
         quadric,
         locked: kept_locked,
         border,
         stats: s.stats,
         triangles_start,
-    })
+        target,
+    }
 }
 
 /// A block's start coarsened by clusters (`clusters`), as a state (hash not filed) with its
@@ -359,28 +609,27 @@ fn coarse_start(
     None
 }
 
-/// The blocks' meshes as one, welded at their locked vertices (which sit on lattice corners),
-/// in block order: (mesh, quadrics, which vertices are seam vertices, border edges, the
-/// blocks' stats, start triangles).
-#[allow(clippy::type_complexity)]
-fn weld(
-    done: Vec<Done>,
-) -> (
-    Mesh,
-    Vec<Quadric>,
-    Vec<bool>,
-    Vec<(u32, u32)>,
-    SimplifyStats,
-    u64,
-) {
+/// Meshes of blocks (or groups) welded into one.
+struct Welded {
+    mesh: Mesh,
+    quadric: Vec<Quadric>,
+    /// Whether each vertex was locked in its block (or group): a seam vertex.
+    seam: Vec<bool>,
+    /// The members' edges left by the border rule.
+    border: Vec<(u32, u32)>,
+    /// The members' stats, summed.
+    stats: SimplifyStats,
+}
+
+/// `done` as one mesh, welded at the members' locked vertices (which sit on lattice corners),
+/// in the given order.
+fn weld(done: Vec<Done>) -> Welded {
     let mut mesh = Mesh::default();
     let (mut quadric, mut seam, mut border) = (Vec::new(), Vec::new(), Vec::new());
     let mut stats = SimplifyStats::default();
-    let mut start = 0;
     let mut at: HashMap<u64, u32, BuildHasherDefault<KeyHasher>> = HashMap::default();
     for d in done {
         stats.add(&d.stats);
-        start += d.triangles_start;
         let ids: Vec<u32> = (0..d.mesh.positions.len())
             .map(|v| {
                 let p = d.mesh.positions[v];
@@ -408,7 +657,13 @@ fn weld(
             (a.min(b), a.max(b))
         }));
     }
-    (mesh, quadric, seam, border, stats, start)
+    Welded {
+        mesh,
+        quadric,
+        seam,
+        border,
+        stats,
+    }
 }
 
 #[cfg(test)]
@@ -441,13 +696,16 @@ mod tests {
                 );
                 assert!(out.mesh.triangles.len() * 3 < start as usize, "seed {seed}");
             }
-            let broken =
-                simplify_boundary_with(&joined, &cls, None, opts(), 5, Locks::Ignore, &|| false)
-                    .unwrap();
-            assert!(
-                !broken.mesh.manifold_defects().is_manifold(),
-                "seed {seed}: moving seam vertices went unnoticed"
-            );
+            for locks in [Locks::Ignore, Locks::IgnoreInGroups] {
+                let broken =
+                    simplify_boundary_with(&joined, &cls, None, opts(), 2, locks, &|| false)
+                        .unwrap();
+                assert!(broken.stats.groups > 0);
+                assert!(
+                    !broken.mesh.manifold_defects().is_manifold(),
+                    "seed {seed}: moving seam vertices went unnoticed"
+                );
+            }
         }
     }
 
@@ -693,6 +951,33 @@ mod tests {
         assert!(deep > 100, "only {deep} deep points");
     }
 
+    /// Jobs run once each, costliest first on one thread, and their results come back in
+    /// index order on any number of threads.
+    #[test]
+    fn largest_first_runs_each_job_once_in_cost_order() {
+        let cost = [3, 9, 1, 9, 0, 5];
+        for threads in [1, 3] {
+            let order = Mutex::new(Vec::new());
+            let out = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap()
+                .install(|| {
+                    largest_first(&cost, |i| {
+                        order.lock().unwrap().push(i);
+                        10 * i
+                    })
+                });
+            assert_eq!(out, vec![0, 10, 20, 30, 40, 50]);
+            let mut order = order.into_inner().unwrap();
+            if threads == 1 {
+                assert_eq!(order, vec![1, 3, 5, 0, 2, 4]);
+            }
+            order.sort_unstable();
+            assert_eq!(order, vec![0, 1, 2, 3, 4, 5]);
+        }
+    }
+
     #[test]
     fn the_memory_estimate_knows_the_block_size() {
         assert_eq!(BLOCK_VOXELS, crate::input::memory::BLOCK_VOXELS);
@@ -715,6 +1000,7 @@ mod tests {
                     })
             };
             let (one, four) = (run(1), run(4));
+            assert!(one.stats.groups > 0, "seed {seed}: no group simplified");
             assert_eq!(one.mesh, four.mesh, "seed {seed}");
             assert_eq!(one.stats, four.stats, "seed {seed}");
         }

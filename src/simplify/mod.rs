@@ -163,6 +163,10 @@ pub struct SimplifyStats {
     pub clusters: u64,
     #[serde(default)]
     pub cluster_vertices: u64,
+    /// Groups of blocks (2×2×2, then groups of those) simplified together after their blocks,
+    /// their seams inside the group free (`blocked`).
+    #[serde(default)]
+    pub groups: u64,
 }
 
 impl SimplifyStats {
@@ -191,6 +195,7 @@ impl SimplifyStats {
         self.blocks_redone += o.blocks_redone;
         self.clusters += o.clusters;
         self.cluster_vertices += o.cluster_vertices;
+        self.groups += o.groups;
     }
 }
 
