@@ -15,6 +15,8 @@
 
 use std::collections::{HashSet, VecDeque};
 
+use rayon::prelude::*;
+
 use crate::mesh::classify::VoxelSet;
 
 /// Cell `b` of a vertex's 2×2×2 block is voxel vertex + (b & 1, b >> 1 & 1, b >> 2 & 1) - 1.
@@ -140,12 +142,28 @@ impl BitSlab {
 /// are skipped where their blocks are all one class, so only the boundary's vertices are looked
 /// at one by one.
 pub fn pinched_vertices(set: &dyn VoxelSet) -> Vec<[isize; 3]> {
-    let [nx, ny, nz] = set.dims();
+    /// Vertex planes per parallel task (each reads one slab more than it scans).
+    const PLANES: usize = 16;
+    let nz = set.dims()[2];
+    let starts: Vec<usize> = (0..=nz).step_by(PLANES).collect();
+    let parts: Vec<Vec<[isize; 3]>> = starts
+        .par_iter()
+        .map(|&k0| pinched_in(set, k0..(k0 + PLANES).min(nz + 1)))
+        .collect();
+    parts.concat()
+}
+
+/// [`pinched_vertices`] on the vertex planes `planes`, in scan order.
+fn pinched_in(set: &dyn VoxelSet, planes: std::ops::Range<usize>) -> Vec<[isize; 3]> {
+    let [nx, ny, _] = set.dims();
     let mut slab = vec![false; nx * ny];
     let (mut below, mut here) = (BitSlab::new(nx, ny), BitSlab::new(nx, ny));
+    // The slab below the first plane (all outside below the grid).
+    set.slab(planes.start as isize - 1, &mut slab);
+    below.fill(&slab, nx);
     let words = below.words;
     let mut out = Vec::new();
-    for k in 0..=nz {
+    for k in planes {
         set.slab(k as isize, &mut slab);
         here.fill(&slab, nx);
         // Vertex (i, j) of plane k: padded columns i, i + 1 and rows j, j + 1 of both slabs.
