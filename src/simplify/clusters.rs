@@ -85,12 +85,18 @@ pub(super) enum Declined {
 /// cluster's members in vertex order. Only clusters of two or more are kept.
 fn clusters(mesh: &Mesh, locked: &[bool]) -> (Vec<u32>, Vec<Vec<u32>>) {
     let n = mesh.positions.len();
-    let cell = |v: u32| (mesh.positions[v as usize] / CELL).floor();
+    // Each free vertex's cell, packed (positions are lattice points, so exact); None if locked.
+    let cell: Vec<Option<[i64; 3]>> = (0..n)
+        .map(|v| {
+            let c = (mesh.positions[v] / CELL).floor();
+            (!locked[v]).then_some([c.x as i64, c.y as i64, c.z as i64])
+        })
+        .collect();
     let mut uf = UnionFind::new(n);
     for t in &mesh.triangles {
         for k in 0..3 {
             let (a, b) = (t[k], t[(k + 1) % 3]);
-            if !locked[a as usize] && !locked[b as usize] && cell(a) == cell(b) {
+            if cell[a as usize].is_some() && cell[a as usize] == cell[b as usize] {
                 uf.join(a, b);
             }
         }
@@ -121,29 +127,37 @@ fn clusters(mesh: &Mesh, locked: &[bool]) -> (Vec<u32>, Vec<Vec<u32>>) {
 
 /// Whether the edges and triangles among each cluster's members form a contractible set
 /// (connected by construction; Euler characteristic 1), per cluster.
-fn contractible(mesh: &Mesh, cluster: &[u32], count: usize) -> Vec<bool> {
+fn contractible<'s>(
+    mesh: &Mesh,
+    cluster: &[u32],
+    count: usize,
+    star: impl Fn(u32) -> &'s [u32],
+) -> Vec<bool> {
     let mut chi: Vec<i64> = vec![0; count];
-    let mut edges: Vec<(u32, u32, u32)> = Vec::new();
-    for &c in cluster.iter().filter(|&&c| c != u32::MAX) {
-        chi[c as usize] += 1;
-    }
     for t in &mesh.triangles {
         let c = cluster[t[0] as usize];
         if c != u32::MAX && t.iter().all(|&x| cluster[x as usize] == c) {
             chi[c as usize] += 1;
         }
-        for k in 0..3 {
-            let (a, b) = (t[k], t[(k + 1) % 3]);
-            let c = cluster[a as usize];
-            if c != u32::MAX && cluster[b as usize] == c {
-                edges.push((c, a.min(b), a.max(b)));
-            }
-        }
     }
-    edges.sort_unstable();
-    edges.dedup();
-    for (c, _, _) in edges {
-        chi[c as usize] -= 1;
+    // Vertices, less each edge once: at its lower end, its distinct higher ends in the cluster.
+    let mut ends: Vec<u32> = Vec::new();
+    for (a, &c) in cluster.iter().enumerate() {
+        if c == u32::MAX {
+            continue;
+        }
+        let a = a as u32;
+        ends.clear();
+        for &t in star(a) {
+            ends.extend(
+                mesh.triangles[t as usize]
+                    .iter()
+                    .filter(|&&b| b > a && cluster[b as usize] == c),
+            );
+        }
+        ends.sort_unstable();
+        ends.dedup();
+        chi[c as usize] += 1 - ends.len() as i64;
     }
     chi.iter().map(|&x| x == 1).collect()
 }
@@ -201,14 +215,6 @@ pub(super) fn coarsen(
     };
     let n = mesh.positions.len();
     let (cluster, members) = clusters(mesh, locked);
-    let mut active = contractible(mesh, &cluster, members.len());
-    for &c in vetoed {
-        active[c as usize] = false;
-    }
-    let point: Vec<DVec3> = members
-        .iter()
-        .map(|m| m.iter().map(|&v| mesh.positions[v as usize]).sum::<DVec3>() / m.len() as f64)
-        .collect();
     // Each fine vertex's triangles (offsets into one list).
     let mut first = vec![0u32; n + 1];
     for &v in mesh.triangles.iter().flatten() {
@@ -226,6 +232,14 @@ pub(super) fn coarsen(
         }
     }
     let star = |v: u32| &star[first[v as usize] as usize..first[v as usize + 1] as usize];
+    let mut active = contractible(mesh, &cluster, members.len(), star);
+    for &c in vetoed {
+        active[c as usize] = false;
+    }
+    let point: Vec<DVec3> = members
+        .iter()
+        .map(|m| m.iter().map(|&v| mesh.positions[v as usize]).sum::<DVec3>() / m.len() as f64)
+        .collect();
     // Ids while checking: fine vertices 0..n, cluster c as n + c.
     let image = |active: &[bool], v: u32| match cluster[v as usize] {
         c if c != u32::MAX && active[c as usize] => n as u32 + c,
