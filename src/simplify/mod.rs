@@ -145,16 +145,17 @@ pub struct SimplifyStats {
     pub rejected_band: u64,
     pub rejected_sweep: u64,
     pub rejected_intersection: u64,
-    /// Collapses a block's pass left to the seam pass: they would have moved the surface onto
-    /// the block's box (docs/design.md, "Blocks").
+    /// Collapses a block's (or group's) pass left to a later pass: they would have moved the
+    /// surface onto its box (docs/design.md, "Blocks").
     pub deferred_at_block_border: u64,
     /// Disc patches remeshed in one step (`discs`), and the vertices they removed.
     #[serde(default)]
     pub discs: u64,
     #[serde(default)]
     pub disc_vertices: u64,
-    /// Blocks whose pass, with crossings tested against the neighbours only, ended with a
-    /// crossing pair and was done again testing every near triangle (`blocked`).
+    /// Blocks and groups of blocks whose pass, with crossings tested against the neighbours
+    /// only, ended with a crossing pair and was done again testing every near triangle
+    /// (`blocked`).
     #[serde(default)]
     pub blocks_redone: u64,
     /// Clusters of the voxel boundary's vertices each made one at a block's start
