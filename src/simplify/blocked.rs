@@ -146,7 +146,7 @@ fn simplify_boundary_with(
     // to run alone at the end.
     let cost: Vec<usize> = list.par_iter().map(|b| faces_estimate(set, b)).collect();
     // Progress for long runs: a line at every tenth of the blocks.
-    let finished = std::sync::atomic::AtomicUsize::new(0);
+    let finished = AtomicUsize::new(0);
     let tenth = list.len().div_ceil(10).max(1);
     let done = largest_first(&cost, |n| {
         if stop() {
@@ -171,7 +171,7 @@ fn simplify_boundary_with(
             done.stats.blocks_redone += 1;
             done
         });
-        let k = finished.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
+        let k = finished.fetch_add(1, Ordering::Relaxed) + 1;
         if k % tenth == 0 && k < list.len() {
             tracing::info!("simplified {k} of {} blocks", list.len());
         }
@@ -307,12 +307,24 @@ fn seeds(
     (queued, parked)
 }
 
+/// The box of a group's members together (they tile it: `groups`).
+fn joint_box(members: &[Done]) -> Block {
+    let mut block = members[0].block;
+    for m in members {
+        for a in 0..3 {
+            block.lo[a] = block.lo[a].min(m.block.lo[a]);
+            block.hi[a] = block.hi[a].max(m.block.hi[a]);
+        }
+    }
+    block
+}
+
 /// A group of blocks (or of groups) welded and simplified as one block of their joint box:
 /// the seam vertices inside the box are free now, those on its faces stay locked. Crossings
-/// tested against the neighbours only and certified at the end, as for a block; the welded
-/// start holds no crossing pair (each member's is certified, and members meet only at shared
-/// locked vertices and edges), so a pass done again from it testing every near triangle
-/// cannot fail. None when `stop` said yes.
+/// tested against the neighbours only and certified at the end, as for a block; where the
+/// certificate finds a pair, the group again from the same welded start with every near
+/// triangle tested (no two of its triangles cross: members meet only at shared locked
+/// vertices and edges). None when `stop` said yes.
 fn simplify_group(
     members: Vec<Done>,
     cls: &Classifier,
@@ -321,13 +333,7 @@ fn simplify_group(
     locks: Locks,
     stop: &(dyn Fn() -> bool + Sync),
 ) -> Option<Done> {
-    let mut block = members[0].block;
-    for m in &members {
-        for a in 0..3 {
-            block.lo[a] = block.lo[a].min(m.block.lo[a]);
-            block.hi[a] = block.hi[a].max(m.block.hi[a]);
-        }
-    }
+    let block = joint_box(&members);
     let target = members.iter().map(|m| m.target).sum();
     let triangles_start = members.iter().map(|m| m.triangles_start).sum();
     let Welded {
@@ -343,15 +349,11 @@ fn simplify_group(
         .zip(&mesh.positions)
         .map(|(&s, &p)| s && block.on_faces(p))
         .collect();
-    let frozen = if locks.in_groups() {
-        locked.clone()
-    } else {
-        vec![false; locked.len()]
-    };
+    let locks = locks.in_groups();
     let pass = |crossings| {
         let mut s = State::unfiled(mesh.clone(), Some(quadric.clone()));
         s.crossings = crossings;
-        let (queued, parked) = seeds(&s, &seam, &border, |v| !frozen[v as usize]);
+        let (queued, parked) = seeds(&s, &seam, &border, |v| !locks || !locked[v as usize]);
         let mut scratch = Scratch::new(cls, pieces, s.tris.len());
         let heap = Queue::new(queued);
         let border = run_block(
@@ -359,7 +361,7 @@ fn simplify_group(
             heap,
             parked,
             &mut scratch,
-            (&locked, &frozen),
+            (&locked, locks),
             &block,
             &opts,
             target,
@@ -434,19 +436,14 @@ fn simplify_block(
     let (mut s, locked) = coarse_start(&mesh, &locked, block, &mut scratch, &opts, crossings)
         .unwrap_or_else(|| (State::unfiled(mesh, None), locked));
     s.crossings = crossings;
-    let frozen = if locks {
-        locked.clone()
-    } else {
-        vec![false; locked.len()]
-    };
-    let free = |c: &Candidate| !frozen[c.a as usize] && !frozen[c.b as usize];
+    let free = |c: &Candidate| !locks || (!locked[c.a as usize] && !locked[c.b as usize]);
     let heap = Queue::new(all_edges(&s).into_iter().filter(free).collect());
     let border = run_block(
         &mut s,
         heap,
         HashMap::new(),
         &mut scratch,
-        (&locked, &frozen),
+        (&locked, locks),
         block,
         &opts,
         target,
@@ -461,8 +458,8 @@ fn simplify_block(
 
 /// The collapses of one block's (or group's) pass, one at a time from `heap`, until none is
 /// left, `target` triangles are reached or `stop` says yes; with `discs`, the disc patches are
-/// remeshed once the collapses that keep the surface are done. No candidate has a `frozen` end
-/// (the `locked` vertices, but for the tests' mutations); the border rule reads `locked`.
+/// remeshed once the collapses that keep the surface are done. No candidate has a `locked` end
+/// unless `locks` is false (the tests' mutations); the border rule reads `locked` either way.
 /// Returns the edges whose last outcome was the border rule.
 #[allow(clippy::too_many_arguments)]
 fn run_block(
@@ -470,14 +467,14 @@ fn run_block(
     mut heap: Queue,
     mut parked: HashMap<u32, Vec<u32>>,
     scratch: &mut Scratch,
-    (locked, frozen): (&[bool], &[bool]),
+    (locked, locks): (&[bool], bool),
     block: &Block,
     opts: &SimplifyOptions,
     target: usize,
     discs: bool,
     stop: &(dyn Fn() -> bool + Sync),
 ) -> HashSet<(u32, u32), BuildHasherDefault<KeyHasher>> {
-    let free = |c: &Candidate| !frozen[c.a as usize] && !frozen[c.b as usize];
+    let free = |c: &Candidate| !locks || (!locked[c.a as usize] && !locked[c.b as usize]);
     // Edges whose last outcome was the border rule.
     let mut border: HashSet<(u32, u32), BuildHasherDefault<KeyHasher>> = HashSet::default();
     // The border rule, before the costly checks: every moved triangle's vertex locked or
@@ -771,13 +768,7 @@ mod tests {
                     })
                     .collect();
                 for members in groups(done, 6) {
-                    let mut block = members[0].block;
-                    for m in &members {
-                        for a in 0..3 {
-                            block.lo[a] = block.lo[a].min(m.block.lo[a]);
-                            block.hi[a] = block.hi[a].max(m.block.hi[a]);
-                        }
-                    }
+                    let block = joint_box(&members);
                     let mut before: Vec<[u64; 3]> = members
                         .iter()
                         .flat_map(|m| locked_at(&m.mesh, &m.locked, |p| block.on_faces(p)))
