@@ -108,6 +108,12 @@ pub trait VoxelSet: Sync {
         fill_box_voxel_by_voxel(self, lo, hi, out)
     }
 
+    /// Row (j, k) along x as bits (voxel i at bit i % 64 of word i / 64, none past nx), where
+    /// the set holds its rows so; None where it does not (then read it by [`Self::slab`]).
+    fn row_bits(&self, _j: usize, _k: usize) -> Option<&[u64]> {
+        None
+    }
+
     /// Fill `slab` (nx·ny, index j·nx + i) with the voxels of z-slab `k`; all false when `k` is
     /// outside the grid.
     fn slab(&self, k: isize, slab: &mut [bool]) {
@@ -183,23 +189,29 @@ impl Classifier {
             bits.words_raw_mut()
                 .par_chunks_mut(words * ny)
                 .enumerate()
-                .for_each(|(k, slab)| {
-                    for (j, row) in slab.chunks_mut(words).enumerate() {
-                        let (lo, hi) = me.x.range(k as isize, j as isize, ny, nx);
-                        for i in lo.max(0)..=hi {
-                            let i = i as usize;
-                            if me.y.contains(i, k, j) && me.z.contains(i, j, k) {
-                                row[i / 64] |= 1 << (i % 64);
+                .for_each_init(
+                    || vec![0u64; words],
+                    |local, (k, slab)| {
+                        for (j, row) in slab.chunks_mut(words).enumerate() {
+                            // Built aside and written once: the row's first touch is a write,
+                            // so a fresh page is mapped once, not as the zero page first.
+                            local.fill(0);
+                            let (lo, hi) = me.x.range(k as isize, j as isize, ny, nx);
+                            for i in lo.max(0)..=hi {
+                                let i = i as usize;
+                                let bit = me.y.contains(i, k, j) & me.z.contains(i, j, k);
+                                local[i / 64] |= (bit as u64) << (i % 64);
                             }
-                        }
-                        if let Some(c) = &me.carved {
-                            let carved = c.row(c.row_index(j, k));
-                            for (w, c) in row.iter_mut().zip(carved) {
-                                *w &= !c;
+                            if let Some(c) = &me.carved {
+                                let carved = c.row(c.row_index(j, k));
+                                for (w, c) in local.iter_mut().zip(carved) {
+                                    *w &= !c;
+                                }
                             }
+                            row.copy_from_slice(local);
                         }
-                    }
-                });
+                    },
+                );
         }
         self.solid = Some(bits);
         self.carved = None;
@@ -303,6 +315,11 @@ impl VoxelSet for Classifier {
 
     fn inside(&self, i: isize, j: isize, k: isize) -> bool {
         Classifier::inside(self, i, j, k)
+    }
+
+    fn row_bits(&self, j: usize, k: usize) -> Option<&[u64]> {
+        let solid = self.solid.as_ref()?;
+        Some(solid.row(solid.row_index(j, k)))
     }
 
     fn slab(&self, k: isize, slab: &mut [bool]) {

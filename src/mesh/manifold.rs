@@ -121,6 +121,30 @@ impl BitSlab {
         }
     }
 
+    /// z-slab `k` of `set`: its bit rows shifted by the border's bit where it has them
+    /// ([`VoxelSet::row_bits`]), else through `scratch` (nx·ny bools).
+    fn read(&mut self, set: &dyn VoxelSet, k: isize, scratch: &mut [bool]) {
+        let [nx, ny, nz] = set.dims();
+        let in_grid = (0..nz as isize).contains(&k) && ny > 0;
+        if !in_grid || set.row_bits(0, k as usize).is_none() {
+            set.slab(k, scratch);
+            return self.fill(scratch, nx);
+        }
+        self.bits.fill(0);
+        for j in 0..ny {
+            let row = set
+                .row_bits(j, k as usize)
+                .expect("a set has bit rows or none");
+            let at = (j + 1) * self.words;
+            for (w, &x) in row.iter().enumerate() {
+                self.bits[at + w] |= x << 1;
+                if x >> 63 != 0 {
+                    self.bits[at + w + 1] |= x >> 63;
+                }
+            }
+        }
+    }
+
     fn fill(&mut self, slab: &[bool], nx: usize) {
         self.bits.fill(0);
         for (j, row) in slab.chunks_exact(nx.max(1)).enumerate() {
@@ -159,13 +183,11 @@ fn pinched_in(set: &dyn VoxelSet, planes: std::ops::Range<usize>) -> Vec<[isize;
     let mut slab = vec![false; nx * ny];
     let (mut below, mut here) = (BitSlab::new(nx, ny), BitSlab::new(nx, ny));
     // The slab below the first plane (all outside below the grid).
-    set.slab(planes.start as isize - 1, &mut slab);
-    below.fill(&slab, nx);
+    below.read(set, planes.start as isize - 1, &mut slab);
     let words = below.words;
     let mut out = Vec::new();
     for k in planes {
-        set.slab(k as isize, &mut slab);
-        here.fill(&slab, nx);
+        here.read(set, k as isize, &mut slab);
         // Vertex (i, j) of plane k: padded columns i, i + 1 and rows j, j + 1 of both slabs.
         for j in 0..=ny {
             let word =
@@ -409,6 +431,30 @@ mod tests {
                 }
             }
             assert_eq!(pinched_vertices(&set), want, "seed {seed}");
+        }
+    }
+
+    /// The scan reads a solidified classifier by its bit rows (shifted by the border's bit)
+    /// and finds what it finds reading the same voxels one by one.
+    #[test]
+    fn bit_rows_and_voxels_give_the_same_scan() {
+        for seed in 0..12u64 {
+            // Widths around one and two words (x ends at word boundaries and inside words).
+            let nx: u32 = [62, 63, 64, 65, 127, 128, 129, 70][seed as usize % 8];
+            let dims = [nx, 5 + seed as u32 % 3, 6 + seed as u32 % 4];
+            let set = crate::mesh::classify::test_support::random(dims, seed).solidify();
+            assert!(
+                set.row_bits(0, 0).is_some(),
+                "a solidified set has bit rows"
+            );
+            let copy = DenseSet::copy_of(&set);
+            assert!(copy.row_bits(0, 0).is_none());
+            let (by_bits, by_voxels) = (pinched_vertices(&set), pinched_vertices(&copy));
+            assert!(
+                !by_voxels.is_empty(),
+                "seed {seed}: a scan with nothing to find"
+            );
+            assert_eq!(by_bits, by_voxels, "seed {seed}");
         }
     }
 
