@@ -591,9 +591,10 @@ fn finish(
 
 /// A block's start coarsened by clusters (`clusters`), as a state (hash not filed) with its
 /// vertices' locks; None when no cluster is taken. Crossings: a pass that tests neighbours only
-/// is certified at its end, coarse start included; for a pass that tests every near triangle
-/// the start itself must hold no conflicting pair, so the clusters of the triangles in one are
-/// left fine and the start made again (a few times at most, else the pass starts fine).
+/// is certified at its end, coarse start included, and starts from the clusters' levels; for a
+/// pass that tests every near triangle the start itself must hold no conflicting pair, so it
+/// starts from one level, the clusters of the triangles in a conflicting pair are left fine
+/// and the start made again (a few times at most, else the pass starts fine).
 fn coarse_start(
     mesh: &Mesh,
     locked: &[bool],
@@ -604,22 +605,29 @@ fn coarse_start(
 ) -> Option<(State, Vec<bool>)> {
     /// Starts made again for conflicting pairs before the pass starts fine.
     const TRIES: usize = 4;
+    let state = |c: clusters::Coarse| {
+        let mut s = State::unfiled(c.mesh, Some(c.quadric));
+        (s.stats.clusters, s.stats.cluster_vertices) = (c.clusters, c.removed);
+        (s, c.locked)
+    };
+    if crossings == Crossings::Neighbours {
+        return clusters::coarsen_levels(mesh, locked, block, scratch, opts)
+            .ok()
+            .map(state);
+    }
     let mut vetoed: Vec<u32> = Vec::new();
     for _ in 0..TRIES {
         let c = clusters::coarsen(mesh, locked, &vetoed, block, scratch, opts).ok()?;
-        let mut s = State::unfiled(c.mesh, Some(c.quadric));
-        (s.stats.clusters, s.stats.cluster_vertices) = (c.clusters, c.removed);
-        if crossings == Crossings::Neighbours {
-            return Some((s, c.locked));
-        }
+        let cluster = c.cluster.clone();
+        let (s, locked) = state(c);
         let pairs = s.conflicts(false);
         if pairs.is_empty() {
-            return Some((s, c.locked));
+            return Some((s, locked));
         }
         let before = vetoed.len();
         for (t, u) in pairs {
             for x in s.tris[t as usize].iter().chain(&s.tris[u as usize]) {
-                let k = c.cluster[*x as usize];
+                let k = cluster[*x as usize];
                 if k != u32::MAX {
                     vetoed.push(k);
                 }

@@ -40,10 +40,16 @@ use crate::mesh::blocks::Block;
 use crate::mesh::Mesh;
 use crate::union_find::UnionFind;
 
-/// Lattice points along each edge of a cell (voxels). At 4 a surface of every fourth voxel put
+/// Lattice points along each edge of a cell (voxels) of a start of one level, the start of a
+/// pass whose clusters may be vetoed ([`coarsen`]). At 4 a surface of every fourth voxel put
 /// 99% of its triangles in T at n = 512 and 1500 (docs/perf-log.md, "A coarse start by surface
 /// nets"); at 8, 89-93%.
 const CELL: f64 = 4.0;
+
+/// The cells of [`coarsen_levels`], coarsest first (voxels): each level clusters the mesh the
+/// one before left, so where cells of 8 fail their check, cells of 4 and then 2 take what
+/// they can (docs/perf-log.md, "Clusters in three levels").
+const LEVELS: [f64; 3] = [8.0, 4.0, 2.0];
 
 /// Most solid angles (pieces in the box times triangles of O and N) the sweep check of one step
 /// may cost, about a tenth of a second.
@@ -81,14 +87,16 @@ pub(super) enum Declined {
     Euler,
 }
 
-/// The clusters of `mesh`'s free vertices: each vertex's cluster (u32::MAX for none) and each
-/// cluster's members in vertex order. Only clusters of two or more are kept.
-fn clusters(mesh: &Mesh, locked: &[bool]) -> (Vec<u32>, Vec<Vec<u32>>) {
+/// The clusters of `mesh`'s free vertices in cells of `size`³: each vertex's cluster
+/// (u32::MAX for none) and each cluster's members in vertex order. Only clusters of two or
+/// more are kept.
+fn clusters(mesh: &Mesh, locked: &[bool], size: f64) -> (Vec<u32>, Vec<Vec<u32>>) {
     let n = mesh.positions.len();
-    // Each free vertex's cell, packed (positions are lattice points, so exact); None if locked.
+    // Each free vertex's cell, packed; None if locked. (A function of the position alone:
+    // lattice points are exact, and a former cluster's mean lies in one cell like any point.)
     let cell: Vec<Option<[i64; 3]>> = (0..n)
         .map(|v| {
-            let c = (mesh.positions[v] / CELL).floor();
+            let c = (mesh.positions[v] / size).floor();
             (!locked[v]).then_some([c.x as i64, c.y as i64, c.z as i64])
         })
         .collect();
@@ -200,8 +208,9 @@ fn one_fan(link: &mut [(u32, u32)], open: bool) -> bool {
     false
 }
 
-/// `mesh`'s start coarsened by clusters where every check passes (module docs); the reason
-/// when it stays fine.
+/// `mesh`'s start coarsened by one level of clusters (cells of [`CELL`]) where every check
+/// passes (module docs), none of the clusters `vetoed` (ids as [`Coarse::cluster`] gives
+/// them); the reason when it stays fine.
 pub(super) fn coarsen(
     mesh: &Mesh,
     locked: &[bool],
@@ -210,11 +219,64 @@ pub(super) fn coarsen(
     scratch: &mut Scratch,
     opts: &SimplifyOptions,
 ) -> Result<Coarse, Declined> {
+    coarsen_in(mesh, locked, None, vetoed, CELL, block, scratch, opts)
+}
+
+/// `mesh`'s start coarsened by the clusters of each of [`LEVELS`] in turn, each level a step
+/// checked as [`coarsen`]'s (the tolerance, border, sweep and topology checks apply to the
+/// mesh the level before left, which they hold for as the fine start does). The quadrics add
+/// up the fine triangles' planes through the levels. [`Coarse::cluster`] gives the last
+/// level's clusters. The first level's reason when no level takes any cluster.
+pub(super) fn coarsen_levels(
+    mesh: &Mesh,
+    locked: &[bool],
+    block: &Block,
+    scratch: &mut Scratch,
+    opts: &SimplifyOptions,
+) -> Result<Coarse, Declined> {
+    let mut done: Option<Coarse> = None;
+    let mut first_reason = None;
+    for size in LEVELS {
+        let step = match &done {
+            None => coarsen_in(mesh, locked, None, &[], size, block, scratch, opts),
+            Some(c) => {
+                let quadric = Some(c.quadric.as_slice());
+                coarsen_in(&c.mesh, &c.locked, quadric, &[], size, block, scratch, opts)
+            }
+        };
+        match (step, &mut done) {
+            (Ok(mut c), Some(before)) => {
+                c.clusters += before.clusters;
+                c.removed += before.removed;
+                done = Some(c);
+            }
+            (Ok(c), None) => done = Some(c),
+            (Err(why), _) => {
+                first_reason.get_or_insert(why);
+            }
+        }
+    }
+    done.ok_or_else(|| first_reason.expect("at least one level"))
+}
+
+/// One level of clusters: [`coarsen`] in cells of `size`, the vertices' quadrics `quadric`
+/// (None: the planes of `mesh`'s own triangles, for a fine start).
+#[allow(clippy::too_many_arguments)]
+fn coarsen_in(
+    mesh: &Mesh,
+    locked: &[bool],
+    quadric: Option<&[Quadric]>,
+    vetoed: &[u32],
+    size: f64,
+    block: &Block,
+    scratch: &mut Scratch,
+    opts: &SimplifyOptions,
+) -> Result<Coarse, Declined> {
     let Some(pieces) = scratch.pieces else {
         return Err(Declined::NoPieces);
     };
     let n = mesh.positions.len();
-    let (cluster, members) = clusters(mesh, locked);
+    let (cluster, members) = clusters(mesh, locked, size);
     // Each fine vertex's triangles (offsets into one list).
     let mut first = vec![0u32; n + 1];
     for &v in mesh.triangles.iter().flatten() {
@@ -393,14 +455,20 @@ pub(super) fn coarsen(
     if pieces.swallowed(&old, &new) {
         return Err(Declined::Sweep);
     }
-    // Each vertex's quadric (the planes of its triangles), summed per cluster.
-    let mut fine = vec![Quadric::default(); n];
-    for t in &mesh.triangles {
-        let q = Quadric::plane(t.map(|v| mesh.positions[v as usize]));
-        for &v in t {
-            fine[v as usize] = fine[v as usize].add(&q);
+    // Each vertex's quadric (the planes of its fine triangles), summed per cluster.
+    let fine = match quadric {
+        Some(q) => q.to_vec(),
+        None => {
+            let mut fine = vec![Quadric::default(); n];
+            for t in &mesh.triangles {
+                let q = Quadric::plane(t.map(|v| mesh.positions[v as usize]));
+                for &v in t {
+                    fine[v as usize] = fine[v as usize].add(&q);
+                }
+            }
+            fine
         }
-    }
+    };
     // New ids in vertex order, a cluster at its first member's place in it.
     let mut id = vec![u32::MAX; n + members.len()];
     let mut out = Coarse {
@@ -517,7 +585,7 @@ pub(super) mod tests {
     /// out of T still enclosed and every point of the outside out of T still outside.
     #[test]
     fn random_sets_coarsen_to_the_same_closed_surface_in_t() {
-        for seed in 0..4 {
+        for (seed, levels) in (0..4).flat_map(|seed| [(seed, false), (seed, true)]) {
             let dims = [26, 24, 22];
             let cls = random(dims, seed);
             let joined = Joined::new(&cls);
@@ -531,8 +599,12 @@ pub(super) mod tests {
                 hi: dims.map(|d| d as usize),
             };
             let locked = vec![false; fine.positions.len()];
-            let out = coarsen(&fine, &locked, &[], &block, &mut scratch, &opts())
-                .unwrap_or_else(|why| panic!("seed {seed}: declined, {why:?}"));
+            let out = if levels {
+                coarsen_levels(&fine, &locked, &block, &mut scratch, &opts())
+            } else {
+                coarsen(&fine, &locked, &[], &block, &mut scratch, &opts())
+            }
+            .unwrap_or_else(|why| panic!("seed {seed}: declined, {why:?}"));
             let m = &out.mesh;
             assert_eq!(
                 m.positions.len() as u64 + out.removed,
