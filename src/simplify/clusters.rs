@@ -687,9 +687,16 @@ pub(super) mod tests {
         assert_eq!(none.err(), Some(Declined::NoPieces));
     }
 
-    /// Locked vertices (a patch's open edges) never join a cluster and stay where they are.
+    /// Locked vertices (a patch's open edges) never join a cluster and stay where they are,
+    /// through one level and through all of them.
     #[test]
     fn locked_vertices_stay() {
+        for levels in [false, true] {
+            locked_vertices_stay_in(levels);
+        }
+    }
+
+    fn locked_vertices_stay_in(levels: bool) {
         let cls = random([20, 20, 20], 3);
         let fine = extract(&Joined::new(&cls));
         let locked: Vec<bool> = fine.positions.iter().map(|p| p.x < 10.0).collect();
@@ -699,7 +706,11 @@ pub(super) mod tests {
             lo: [0; 3],
             hi: [20; 3],
         };
-        let out = coarsen(&fine, &locked, &[], &block, &mut scratch, &opts()).unwrap();
+        let out = if levels {
+            coarsen_levels(&fine, &locked, &block, &mut scratch, &opts()).unwrap()
+        } else {
+            coarsen(&fine, &locked, &[], &block, &mut scratch, &opts()).unwrap()
+        };
         let kept: Vec<DVec3> = (0..out.mesh.positions.len())
             .filter(|&v| out.locked[v])
             .map(|v| out.mesh.positions[v])
