@@ -456,6 +456,25 @@ mod tests {
             );
             assert_eq!(by_bits, by_voxels, "seed {seed}");
         }
+        // Sets that reach the grid's last column (nx a multiple of 64 carries into the padded
+        // row's extra word): a box and two boxes meeting along an edge (a pinch to find).
+        for nx in [63u32, 64, 65, 128] {
+            let box_at = |lo: [f32; 3], hi: [f32; 3]| {
+                crate::mesh::classify::test_support::boxed([nx, 6, 6], lo, hi).solidify()
+            };
+            let n = nx as f32;
+            for set in [
+                box_at([-1.0, 1.0, 1.0], [n + 1.0, 5.0, 5.0]),
+                box_at([n - 3.0, 0.0, 0.0], [n + 1.0, 3.0, 3.0]),
+            ] {
+                let copy = DenseSet::copy_of(&set);
+                assert!(
+                    copy.inside(nx as isize - 1, 2, 2),
+                    "nx {nx}: the last column is inside"
+                );
+                assert_eq!(pinched_vertices(&set), pinched_vertices(&copy), "nx {nx}");
+            }
+        }
     }
 
     /// A random voxel set, reproducible from `seed`.

@@ -1,18 +1,22 @@
-//! A block's start coarsened by vertex clustering, checked once (docs/design.md, "A coarse
-//! start by clusters"). The voxel boundary's free vertices in each cell of [`CELL`]³ lattice
-//! points, joined by the patch's edges inside the cell, become one vertex at their mean; every
-//! triangle is mapped, and those with two corners in one cluster vanish. Most of a block's
-//! collapses (the in-plane ones and the first moving levels, about 6.8 of its 11.5 one-core
-//! seconds at n = 512) are done this way at once, each new triangle checked once.
+//! A block's start coarsened by vertex clustering, each level checked once as one step
+//! (docs/design.md, "A coarse start by clusters"). The free vertices in each cell of the level
+//! (8³, then 4³, then 2³ voxels: [`LEVELS`]), joined by the patch's edges inside the cell,
+//! become one vertex at their mean; every triangle is mapped, and those with two corners in one
+//! cluster vanish. Each level clusters the mesh the one before left. Most of a block's
+//! collapses (the in-plane ones and the first moving levels) are done this way at once, each
+//! new triangle checked once.
 //!
-//! What keeps it sound, the checks of a collapse applied to the whole step:
+//! What keeps it sound, the checks of a collapse applied to the whole step, on a patch whose
+//! triangles are faces of the joined voxels or lie in T (the fine start, and every level's
+//! result again):
 //! - tolerance: every moved triangle passes the band test (`band::Proximity::triangle_within`);
 //! - border: every moved triangle's vertex is locked or strictly inside the block's box, and
 //!   clusters hold no locked vertex, so the patches still fit and stay in their boxes;
-//! - sweep: the fine triangles moved (O) and the new ones (N) both miss the swept volume, so the
-//!   winding number of O - N is constant on each of its pieces; the step is taken only when it
-//!   is zero at each ([`super::pieces::Pieces::swallowed`]), so no point of it is lost. Without
-//!   the pieces, or with too many in the step's box ([`SWEEP_BUDGET`]), the start stays fine;
+//! - sweep: the triangles moved (O: faces of outside voxels or triangles in T) and the new ones
+//!   (N, in T) both miss the swept volume, so the winding number of O - N is constant on each
+//!   of its pieces; the step is taken only when it is zero at each
+//!   ([`super::pieces::Pieces::swallowed`]), so no point of it is lost. Without the pieces, or
+//!   with too many in the step's box ([`SWEEP_BUDGET`]), the level declines;
 //! - topology: each cluster spans a contractible part of the surface (connected, Euler
 //!   characteristic 1); after mapping, every vertex a moved triangle touches has one fan (so
 //!   every edge at a cluster has one triangle each way); and the patch's Euler characteristic is
@@ -24,8 +28,9 @@
 //!   itself (`blocked::coarse_start`).
 //!
 //! A cluster whose triangles fail a local check is left fine and the checks run again on what
-//! changed, until none fails; a failed sweep or Euler check leaves the whole block fine. The
-//! result depends only on the patch: cells, clusters and ids follow vertex order.
+//! changed, until none fails; a failed sweep or Euler check declines the whole level (the mesh
+//! of the level before stands, the fine patch for the first). The result depends only on the
+//! patch: cells, clusters and ids follow vertex order.
 
 use std::collections::HashSet;
 use std::hash::BuildHasherDefault;
@@ -67,7 +72,9 @@ pub(super) struct Coarse {
     pub(super) quadric: Vec<Quadric>,
     pub(super) clusters: u64,
     pub(super) removed: u64,
-    /// Each vertex's cluster (an id [`coarsen`] takes in `vetoed`), u32::MAX for a fine one.
+    /// Each vertex's cluster (an id [`coarsen`] takes in `vetoed`), u32::MAX for a vertex no
+    /// cluster made. From [`coarsen_levels`]: the clusters of the last level that took any,
+    /// numbered on that level's input, so not ids to veto with.
     pub(super) cluster: Vec<u32>,
 }
 
@@ -111,15 +118,15 @@ fn clusters(mesh: &Mesh, locked: &[bool], size: f64) -> (Vec<u32>, Vec<Vec<u32>>
     }
     // A root is its set's smallest id, so clusters are numbered in the order of their first
     // member.
-    let mut size = vec![0u32; n];
+    let mut members_of = vec![0u32; n];
     for v in 0..n as u32 {
-        size[uf.find(v) as usize] += 1;
+        members_of[uf.find(v) as usize] += 1;
     }
     let mut id = vec![u32::MAX; n];
     let mut members: Vec<Vec<u32>> = Vec::new();
     for v in 0..n as u32 {
         let root = uf.find(v);
-        if size[root as usize] < 2 {
+        if members_of[root as usize] < 2 {
             continue;
         }
         if root == v {
@@ -457,7 +464,10 @@ fn coarsen_in(
     }
     // Each vertex's quadric (the planes of its fine triangles), summed per cluster.
     let fine = match quadric {
-        Some(q) => q.to_vec(),
+        Some(q) => {
+            debug_assert_eq!(q.len(), n, "a quadric per vertex");
+            q.to_vec()
+        }
         None => {
             let mut fine = vec![Quadric::default(); n];
             for t in &mesh.triangles {
@@ -605,6 +615,39 @@ pub(super) mod tests {
                 coarsen(&fine, &locked, &[], &block, &mut scratch, &opts())
             }
             .unwrap_or_else(|why| panic!("seed {seed}: declined, {why:?}"));
+            if levels {
+                // The levels take more than cells of 8 or of 4 alone (on these rough sets cells
+                // of 8 mostly fail), and the quadrics still add up to the fine triangles'
+                // planes (each counted at its three corners).
+                let alone = |size: f64, scratch: &mut Scratch| {
+                    coarsen_in(&fine, &locked, None, &[], size, &block, scratch, &opts())
+                        .map_or(0, |c| c.removed)
+                };
+                let (eight, four) = (alone(8.0, &mut scratch), alone(4.0, &mut scratch));
+                assert!(
+                    out.removed > eight.max(four),
+                    "seed {seed}: {} removed, cells of 8 alone {eight}, of 4 alone {four}",
+                    out.removed
+                );
+                let total = |q: &[Quadric]| q.iter().fold(Quadric::default(), |s, x| s.add(x));
+                let planes = places(&fine).into_iter().fold(Quadric::default(), |s, t| {
+                    let q = Quadric::plane(t);
+                    s.add(&q).add(&q).add(&q)
+                });
+                let got = total(&out.quadric);
+                for (g, w) in got
+                    .a
+                    .iter()
+                    .chain(&got.b)
+                    .chain([&got.c])
+                    .zip(planes.a.iter().chain(&planes.b).chain([&planes.c]))
+                {
+                    assert!(
+                        (g - w).abs() <= 1e-9 * (1.0 + w.abs()),
+                        "seed {seed}: quadric sum {g} against {w}"
+                    );
+                }
+            }
             let m = &out.mesh;
             assert_eq!(
                 m.positions.len() as u64 + out.removed,

@@ -158,8 +158,8 @@ pub struct SimplifyStats {
     /// (`blocked`).
     #[serde(default)]
     pub blocks_redone: u64,
-    /// Clusters of the voxel boundary's vertices each made one at a block's start
-    /// (`clusters`), and the vertices they removed.
+    /// Clusters made one vertex at a block's start (`clusters`), summed over its levels (a
+    /// cluster of a coarser level's vertices counts again), and the vertices they removed.
     #[serde(default)]
     pub clusters: u64,
     #[serde(default)]
