@@ -617,8 +617,8 @@ fn coarse_start(
     }
     let mut vetoed: Vec<u32> = Vec::new();
     for _ in 0..TRIES {
-        let c = clusters::coarsen(mesh, locked, &vetoed, block, scratch, opts).ok()?;
-        let cluster = c.cluster.clone();
+        let mut c = clusters::coarsen(mesh, locked, &vetoed, block, scratch, opts).ok()?;
+        let cluster = std::mem::take(&mut c.cluster);
         let (s, locked) = state(c);
         let pairs = s.conflicts(false);
         if pairs.is_empty() {

@@ -251,14 +251,15 @@ pub(super) fn coarsen_levels(
                 coarsen_in(&c.mesh, &c.locked, quadric, &[], size, block, scratch, opts)
             }
         };
-        match (step, &mut done) {
-            (Ok(mut c), Some(before)) => {
-                c.clusters += before.clusters;
-                c.removed += before.removed;
+        match step {
+            Ok(mut c) => {
+                if let Some(before) = &done {
+                    c.clusters += before.clusters;
+                    c.removed += before.removed;
+                }
                 done = Some(c);
             }
-            (Ok(c), None) => done = Some(c),
-            (Err(why), _) => {
+            Err(why) => {
                 first_reason.get_or_insert(why);
             }
         }
@@ -629,19 +630,13 @@ pub(super) mod tests {
                     "seed {seed}: {} removed, cells of 8 alone {eight}, of 4 alone {four}",
                     out.removed
                 );
-                let total = |q: &[Quadric]| q.iter().fold(Quadric::default(), |s, x| s.add(x));
+                let terms = |q: Quadric| [q.a.as_slice(), &q.b, &[q.c]].concat();
+                let got = out.quadric.iter().fold(Quadric::default(), |s, x| s.add(x));
                 let planes = places(&fine).into_iter().fold(Quadric::default(), |s, t| {
                     let q = Quadric::plane(t);
                     s.add(&q).add(&q).add(&q)
                 });
-                let got = total(&out.quadric);
-                for (g, w) in got
-                    .a
-                    .iter()
-                    .chain(&got.b)
-                    .chain([&got.c])
-                    .zip(planes.a.iter().chain(&planes.b).chain([&planes.c]))
-                {
+                for (g, w) in terms(got).iter().zip(&terms(planes)) {
                     assert!(
                         (g - w).abs() <= 1e-9 * (1.0 + w.abs()),
                         "seed {seed}: quadric sum {g} against {w}"
