@@ -277,6 +277,37 @@ impl<'c> Proximity<'c> {
         tol.admits(d_out, d_in)
     }
 
+    /// Whether a step's new triangles (`new`, each with its vertex ids) and its new vertex
+    /// `point`, if any, lie in `tol`: [`Self::triangle_within`] for every triangle, asked in the
+    /// order likeliest to find a no first. A triangle already known to leave T (a step retried
+    /// after a neighbour's often makes the one that failed it before), then the new vertex,
+    /// then a few points of each long triangle ([`Self::probes_miss`]), then the whole
+    /// triangles, largest first. The verdict is the same in any order; the order only finds a
+    /// no sooner (n = 512: a step that failed on its second triangle or later cost 137 µs, on
+    /// its first 28 µs; docs/perf-log.md).
+    pub fn new_surface_within(
+        &mut self,
+        point: Option<DVec3>,
+        new: &[([u32; 3], [DVec3; 3])],
+        tol: Tolerance,
+        r_min: f64,
+    ) -> bool {
+        if new.iter().any(|(_, q)| self.known_out(q, tol, r_min))
+            || point.is_some_and(|p| !self.point_within(p, tol))
+            || new.iter().any(|(_, q)| self.probes_miss(q, tol))
+        {
+            return false;
+        }
+        let mut largest_first: Vec<(f64, [DVec3; 3])> = new
+            .iter()
+            .map(|(_, q)| ((q[1] - q[0]).cross(q[2] - q[0]).length_squared(), *q))
+            .collect();
+        largest_first.sort_by(|x, y| y.0.total_cmp(&x.0));
+        largest_first
+            .iter()
+            .all(|(_, q)| self.triangle_within(*q, tol, r_min))
+    }
+
     /// Whether a long triangle `t` (an edge of [`PROBE_FROM`] or more) has its centroid or an
     /// edge's midpoint out of `tol`. Each probe is a point of t, so a yes means that t does not
     /// lie in T and [`Self::triangle_within`] says no too, only sooner: a triangle that leaves
@@ -485,15 +516,9 @@ impl<'c> Proximity<'c> {
     /// the same large triangles again (at n = 256, 2.7% of the calls but 17% of the lookups).
     pub fn triangle_within(&mut self, t: [DVec3; 3], tol: Tolerance, r_min: f64) -> bool {
         debug_assert!(tol.outside.max(tol.inside) < CENTRE_REACH && r_min > 0.0);
-        let slot = t.iter().flat_map(|p| p.to_array()).fold(0u64, |h, x| {
-            (h ^ x.to_bits()).wrapping_mul(0x9e37_79b9_7f4a_7c15)
-        }) as usize
-            >> 7
-            & (VERDICT_SLOTS - 1);
-        if let Some(k) = self.verdicts[slot] {
-            if k.t == t && k.tol == tol && k.r_min == r_min {
-                return k.within;
-            }
+        let slot = verdict_slot(&t);
+        if let Some(within) = self.kept(slot, &t, tol, r_min) {
+            return within;
         }
         let within = self.refine_triangle(t, tol, r_min);
         self.verdicts[slot] = Some(Verdict3 {
@@ -503,6 +528,19 @@ impl<'c> Proximity<'c> {
             within,
         });
         within
+    }
+
+    /// Whether [`Self::triangle_within`]`(t, tol, r_min)` is known to say no without working
+    /// it out: its verdict is kept, and it is no.
+    pub fn known_out(&self, t: &[DVec3; 3], tol: Tolerance, r_min: f64) -> bool {
+        self.kept(verdict_slot(t), t, tol, r_min) == Some(false)
+    }
+
+    /// The verdict kept for `t` in `slot`, if any.
+    fn kept(&self, slot: usize, t: &[DVec3; 3], tol: Tolerance, r_min: f64) -> Option<bool> {
+        self.verdicts[slot]
+            .filter(|k| k.t == *t && k.tol == tol && k.r_min == r_min)
+            .map(|k| k.within)
     }
 
     /// [`Self::triangle_within`], decided.
@@ -641,6 +679,15 @@ impl<'c> Proximity<'c> {
         self.tetrahedra = work;
         shallow
     }
+}
+
+/// The slot of triangle `t`'s verdict in [`Proximity::verdicts`], by its exact corners.
+fn verdict_slot(t: &[DVec3; 3]) -> usize {
+    t.iter().flat_map(|p| p.to_array()).fold(0u64, |h, x| {
+        (h ^ x.to_bits()).wrapping_mul(0x9e37_79b9_7f4a_7c15)
+    }) as usize
+        >> 7
+        & (VERDICT_SLOTS - 1)
 }
 
 /// The R above which a piece of the triangle test splits without a lookup. A piece whose corners
@@ -968,6 +1015,67 @@ mod tests {
             probed_out > 100 && within > 500 && outside > 500,
             "{probed_out} {within} {outside}"
         );
+    }
+
+    /// A kept no is known before any work, a yes or an unasked triangle never is; and a step's
+    /// new surface is judged as every triangle and its new vertex are, asked one by one on a
+    /// fresh memo, whatever the order and whatever the memo already holds.
+    #[test]
+    fn known_noes_and_the_new_surface_agree_with_the_refinement() {
+        let (mut known, mut yes, mut no) = (0, 0, 0);
+        for seed in 0..2 {
+            let cls = random_at([16, 16, 16], seed + 60);
+            let mut kept = Proximity::new(&cls);
+            let mut rnd = uniform(seed + 70);
+            for _ in 0..600 {
+                let v = DVec3::new(rnd(), rnd(), rnd()) * 16.0;
+                let fan: Vec<([u32; 3], [DVec3; 3])> = (0..2 + (rnd() * 5.0) as usize)
+                    .map(|k| {
+                        let size = 0.3 + 4.0 * rnd();
+                        let t: [DVec3; 3] = corners_around(v, size, &mut rnd);
+                        ([0, k as u32, k as u32 + 1], [v, t[1], t[2]])
+                    })
+                    .collect();
+                let mut fresh = Proximity::new(&cls);
+                let truth = fresh.point_within(v, TOL)
+                    && fan
+                        .iter()
+                        .all(|(_, q)| fresh.refine_triangle(*q, TOL, 0.05));
+                for (_, q) in &fan {
+                    let known_no = kept.known_out(q, TOL, 0.05);
+                    assert!(!known_no || !fresh.refine_triangle(*q, TOL, 0.05), "{q:?}");
+                }
+                assert_eq!(kept.new_surface_within(Some(v), &fan, TOL, 0.05), truth);
+                let mut reversed = fan.clone();
+                reversed.reverse();
+                assert_eq!(
+                    kept.new_surface_within(Some(v), &reversed, TOL, 0.05),
+                    truth
+                );
+                // A no asked once is known from then on (the triangle that said it is kept).
+                if !truth
+                    && fan
+                        .iter()
+                        .any(|(_, q)| !fresh.refine_triangle(*q, TOL, 0.05))
+                {
+                    let inside = fan
+                        .iter()
+                        .filter(|(_, q)| kept.triangle_within(*q, TOL, 0.05))
+                        .count();
+                    assert!(inside < fan.len());
+                    assert!(fan.iter().any(|(_, q)| kept.known_out(q, TOL, 0.05)));
+                    assert!(!kept.new_surface_within(None, &fan, TOL, 0.05));
+                    known += 1;
+                }
+                if truth {
+                    yes += 1;
+                    assert!(fan.iter().all(|(_, q)| !kept.known_out(q, TOL, 0.05)));
+                } else {
+                    no += 1;
+                }
+            }
+        }
+        assert!(known > 50 && yes > 100 && no > 100, "{known} {yes} {no}");
     }
 
     /// Random triangles near random voxel sets: whatever the test accepts has every sampled

@@ -330,13 +330,7 @@ pub(super) fn check(
     may_move(&plan.new)?;
     let prox = &mut scratch.prox;
     let (tol, r_min) = (opts.tolerance, opts.min_radius);
-    if plan.point.is_some_and(|c| !prox.point_within(c, tol))
-        || plan.new.iter().any(|(_, q)| prox.probes_miss(q, tol))
-        || !plan
-            .new
-            .iter()
-            .all(|(_, q)| prox.triangle_within(*q, tol, r_min))
-    {
+    if !prox.new_surface_within(plan.point, &plan.new, tol, r_min) {
         return Err(Reject::Band);
     }
     let old = plan.disc.places(s);

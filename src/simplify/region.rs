@@ -450,15 +450,8 @@ fn band_and_sweep(
     new: &[([u32; 3], [DVec3; 3])],
 ) -> Result<(), Reject> {
     let prox = &mut scratch.prox;
-    // The tolerance volume for the new surface; the new vertex first, the likeliest to be out,
-    // then a few points of each long new triangle, then the whole triangles.
     let (tol, r_min) = (opts.tolerance, opts.min_radius);
-    if !prox.point_within(v, tol)
-        || new.iter().any(|(_, q)| prox.probes_miss(q, tol))
-        || !new
-            .iter()
-            .all(|(_, q)| prox.triangle_within(*q, tol, r_min))
-    {
+    if !prox.new_surface_within(Some(v), new, tol, r_min) {
         return Err(Reject::Band);
     }
     let moved: Vec<[DVec3; 3]> = new.iter().map(|(_, q)| *q).collect();
