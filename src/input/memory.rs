@@ -9,7 +9,7 @@
 //!   646 MB for the bunny at n = 1500, 1500 × 1443 × 1193 voxels);
 //! - the simplifier, block by block (`simplify::blocked`): each worker thread holds one block's
 //!   patch of the voxel boundary and its state, at most about 250 B per triangle for
-//!   8.4·B² triangles (B = 128 voxels: 34 MB); the blocks' results, welded, and the seam pass's
+//!   8.4·B² triangles (B = 256 voxels: 138 MB); the blocks' results, welded, and the seam pass's
 //!   state on them: 250 B per triangle for `SEAM_SHARE` (4 %) of the start triangles, T ≈ 2.8P
 //!   (each hit pixel's ray enters and leaves the volume at least once, two triangles per face;
 //!   2.83P measured on the bundled bunny at n = 1024 and 1500);
@@ -22,8 +22,8 @@
 //!   input holds the rows and the motion's intervals, and the sub-poses between them are made a
 //!   batch at a time (`input::poses`), however many the motion needs.
 //!
-//! So about 30·P + V / 4 bytes with the flood, plus 34 MB per thread: 1.0 GB estimated for the
-//! bunny at n = 1500 on 2 threads, where 0.90 GB was measured (docs/benchmarks.md). An
+//! So about 30·P + V / 4 bytes with the flood, plus 138 MB per thread: 1.2 GB estimated for the
+//! bunny at n = 1500 on 2 threads, where 0.76 GB was measured (docs/benchmarks.md). An
 //! estimate, not a bound: a shape with more boundary per pixel can need more, and a run just
 //! under the limit may still fail late.
 
@@ -38,11 +38,11 @@ const IMAGE_BYTES_PER_PIXEL: f64 = 16.0;
 const TRIANGLES_PER_PIXEL: f64 = 2.8;
 /// Voxels along a simplification block's edge: must be kept in step with
 /// `simplify::blocked::BLOCK_VOXELS` (a test there checks it).
-pub const BLOCK_VOXELS: usize = 128;
+pub const BLOCK_VOXELS: usize = 256;
 /// A mesh and the simplifier's state on it, per triangle.
 const BYTES_PER_TRIANGLE: f64 = 250.0;
 /// The share of the start triangles the blocks leave to the seam pass (2.2-2.4% measured on
-/// the bunny at n = 512 and 1500, blocks of 128 voxels).
+/// the bunny at n = 512 and 1500, blocks of 128 voxels; fewer with blocks of 256).
 const SEAM_SHARE: f64 = 0.04;
 /// One block's start triangles at most, per voxel² of the block's edge (three faces' worth of
 /// pixels, 2.8 triangles each).
@@ -187,17 +187,18 @@ mod tests {
 
     #[test]
     fn estimate_grows_with_the_grid_and_the_suggestion_fits() {
+        // On two workers: each holds a block (138 MB at B = 256), the same at every n.
         let (a, b) = (
-            estimate(&grid(1024), false, false),
-            estimate(&grid(2048), false, false),
+            estimate_on(&grid(2048), false, false, 2),
+            estimate_on(&grid(4096), false, false, 2),
         );
         // Between n² (images, meshes) and n³ (the voxel bits).
         assert!(b / a > 4.0 && b / a < 8.0, "{a} -> {b}");
         assert!(
             estimate_on(&grid(1024), false, false, 8) > estimate_on(&grid(1024), false, false, 2)
         );
-        assert!(estimate(&grid(1024), true, false) > a);
-        assert!(estimate(&grid(1024), false, true) > a);
+        assert!(estimate_on(&grid(2048), true, false, 2) > a);
+        assert!(estimate_on(&grid(2048), false, true, 2) > a);
         let avail = 4e9;
         for flood in [false, true] {
             let e = check(&grid(12288), false, flood, Some(avail), 3.5).unwrap_err();
