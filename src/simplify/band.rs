@@ -146,6 +146,9 @@ pub struct Proximity<'c> {
     verdicts: Vec<Option<Verdict3>>,
     /// Buffers of [`Self::refine`], kept between calls.
     triangles: Refinement<3>,
+    /// A step's triangles with their doubled areas squared, for [`Self::new_surface_within`]
+    /// (kept between calls: the order is asked once per checked step).
+    largest_first: Vec<(f64, [DVec3; 3])>,
     tetrahedra: Refinement<4>,
 }
 
@@ -239,6 +242,7 @@ impl<'c> Proximity<'c> {
             verdicts: vec![None; VERDICT_SLOTS],
             triangles: Refinement::default(),
             tetrahedra: Refinement::default(),
+            largest_first: Vec::new(),
         }
     }
 
@@ -298,14 +302,18 @@ impl<'c> Proximity<'c> {
         {
             return false;
         }
-        let mut largest_first: Vec<(f64, [DVec3; 3])> = new
-            .iter()
-            .map(|(_, q)| ((q[1] - q[0]).cross(q[2] - q[0]).length_squared(), *q))
-            .collect();
+        let mut largest_first = std::mem::take(&mut self.largest_first);
+        largest_first.clear();
+        largest_first.extend(
+            new.iter()
+                .map(|(_, q)| ((q[1] - q[0]).cross(q[2] - q[0]).length_squared(), *q)),
+        );
         largest_first.sort_by(|x, y| y.0.total_cmp(&x.0));
-        largest_first
+        let within = largest_first
             .iter()
-            .all(|(_, q)| self.triangle_within(*q, tol, r_min))
+            .all(|(_, q)| self.triangle_within(*q, tol, r_min));
+        self.largest_first = largest_first;
+        within
     }
 
     /// Whether a long triangle `t` (an edge of [`PROBE_FROM`] or more) has its centroid or an
