@@ -349,6 +349,43 @@ mod tests {
     use crate::mesh::extract::extract;
     use crate::simplify::band::dist_to_centre;
 
+    /// A band refusal parks its edge to be tried again after a neighbour's collapse; the
+    /// retry's refusal does not, until one of the edge's ends changes (other refusals always
+    /// park).
+    #[test]
+    fn an_edge_refused_by_the_band_is_retried_once_per_state_of_its_ends() {
+        let cls = crate::mesh::classify::test_support::random([8, 8, 8], 1);
+        let mut s = State::new(extract(&cls));
+        let [a, b, _] = s.tris[0];
+        let mut heap = Queue::new(Vec::new());
+        let mut parked: HashMap<u32, Vec<u32>> = HashMap::new();
+        let mut refuse = |s: &mut State, why: Reject| {
+            parked.clear(); // as a neighbour's collapse takes the edge out to retry it
+            s.commit_batch(
+                &mut heap,
+                &mut parked,
+                vec![((a, b), Err(why))],
+                Vec::new(),
+                0,
+            );
+            parked.get(&a).is_some_and(|l| l.contains(&b))
+        };
+        assert!(refuse(&mut s, Reject::Band), "the first refusal parks");
+        assert!(
+            !refuse(&mut s, Reject::Band),
+            "the retry's refusal does not"
+        );
+        assert!(!refuse(&mut s, Reject::Band));
+        assert!(refuse(&mut s, Reject::Flip), "other refusals park");
+        s.version[b as usize] += 1;
+        assert!(
+            refuse(&mut s, Reject::Band),
+            "a changed end starts the count again"
+        );
+        assert!(!refuse(&mut s, Reject::Band));
+        assert_eq!(s.stats.rejected_band, 5);
+    }
+
     /// The sweep check by pieces, wired in: a collapse whose old and new triangles wind around a
     /// piece's point is rejected (Sweep), the same collapse with the piece far away passes.
     /// Points are found where the region between the surfaces has winding number ±1.

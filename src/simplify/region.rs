@@ -103,7 +103,7 @@ pub(super) struct Plan {
     pub(super) in_plane: bool,
 }
 
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(super) enum Reject {
     /// A block's pass would move the surface onto its box's faces (`blocked`): left to the seams.
     Border,
