@@ -212,8 +212,15 @@ impl State {
 
     /// Whether `c` still describes its edge (both ends alive, neither moved since).
     pub(super) fn is_current(&self, c: &Candidate) -> bool {
-        let (a, b) = (c.a as usize, c.b as usize);
-        self.vert_alive[a] && self.vert_alive[b] && self.version[a] + self.version[b] == c.ver
+        self.vert_alive[c.a as usize]
+            && self.vert_alive[c.b as usize]
+            && self.ends(c.a, c.b) == c.ver
+    }
+
+    /// The versions of edge (a, b)'s ends summed: versions only grow, so the sum changes
+    /// exactly when either end does.
+    pub(super) fn ends(&self, a: u32, b: u32) -> u32 {
+        self.version[a as usize] + self.version[b as usize]
     }
 
     /// Pushes `c`. A full FIFO first drops its stale entries rather than growing (they are most
@@ -248,7 +255,7 @@ impl State {
             cost: self.best_target(a, b).0 as f32,
             a,
             b,
-            ver: self.version[a as usize] + self.version[b as usize],
+            ver: self.ends(a, b),
         }
     }
 
@@ -466,7 +473,7 @@ impl State {
                     cost: cost as f32,
                     a,
                     b: nb,
-                    ver: self.version[a as usize] + self.version[nb as usize],
+                    ver: self.ends(a, nb),
                 };
                 self.push(heap, c);
                 self.retry_parked(parked, heap, nb, a);
@@ -481,7 +488,7 @@ impl State {
     /// Whether edge (a, b), just refused by the band, may be tried again after a neighbour's
     /// collapse ([`BAND_RETRIES`] times while neither end changes); counts the refusal.
     fn band_retry_left(&mut self, a: u32, b: u32) -> bool {
-        let ver = self.version[a as usize] + self.version[b as usize];
+        let ver = self.ends(a, b);
         let refusals = self
             .band_refusals
             .entry((a.min(b), a.max(b), ver))
