@@ -51,15 +51,16 @@ def glb(parts):
             + struct.pack("<I", len(bin_)) + b"BIN\0" + bin_)
 
 
-x0, x1, y0, y1, z0, z1 = -5.6, 6.0, -0.5, 11.0, -5.0, 4.6
-parts = [
-    ("floor", *plate([x0, y0, z0], [x1 - x0, 0, 0], [0, 0, z1 - z0])),
-    ("wall-west", *plate([x0, y0, z0], [0, 0, z1 - z0], [0, y1 - y0, 0])),
-    ("wall-east", *plate([x1, y0, z0], [0, y1 - y0, 0], [0, 0, z1 - z0])),
-    ("wall-north", *plate([x0, y0, z0], [0, y1 - y0, 0], [x1 - x0, 0, 0])),
-    ("wall-south", *plate([x0, y0, z1], [x1 - x0, 0, 0], [0, y1 - y0, 0])),
-]
-out = os.path.join(os.path.dirname(os.path.abspath(__file__)), "bunny-housing.glb")
-with open(out, "wb") as f:
-    f.write(glb(parts))
-print(out, sum(len(t) for _, _, t in parts), "triangles")
+if __name__ == "__main__":
+    x0, x1, y0, y1, z0, z1 = -5.6, 6.0, -0.5, 11.0, -5.0, 4.6
+    parts = [
+        ("floor", *plate([x0, y0, z0], [x1 - x0, 0, 0], [0, 0, z1 - z0])),
+        ("wall-west", *plate([x0, y0, z0], [0, 0, z1 - z0], [0, y1 - y0, 0])),
+        ("wall-east", *plate([x1, y0, z0], [0, y1 - y0, 0], [0, 0, z1 - z0])),
+        ("wall-north", *plate([x0, y0, z0], [0, y1 - y0, 0], [x1 - x0, 0, 0])),
+        ("wall-south", *plate([x0, y0, z1], [x1 - x0, 0, 0], [0, y1 - y0, 0])),
+    ]
+    out = os.path.join(os.path.dirname(os.path.abspath(__file__)), "bunny-housing.glb")
+    with open(out, "wb") as f:
+        f.write(glb(parts))
+    print(out, sum(len(t) for _, _, t in parts), "triangles")
