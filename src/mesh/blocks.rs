@@ -59,6 +59,55 @@ pub fn blocks(dims: [usize; 3], size: usize) -> Vec<Block> {
     out
 }
 
+/// `list` (with each block's `cost`) after splitting every block that holds more than half the
+/// total cost into its eight half-size children, in z, y, x order in its place, again until
+/// none does; an axis is halved only where the block is at least `2 * min` voxels wide. Such a
+/// block would run alone while every other worker idles (a flat part whose one block holds two
+/// thirds of the surface: docs/perf-log.md, "The second case"). The rule reads costs
+/// only, so the blocks, and the result, do not depend on the thread count.
+pub fn split_dominant(
+    mut list: Vec<Block>,
+    mut cost: Vec<usize>,
+    min: usize,
+    cost_of: impl Fn(&Block) -> usize,
+) -> (Vec<Block>, Vec<usize>) {
+    assert_eq!(list.len(), cost.len(), "a cost per block");
+    loop {
+        let total: usize = cost.iter().sum();
+        let halves = |b: &Block| -> [Vec<(usize, usize)>; 3] {
+            std::array::from_fn(|a| {
+                let (lo, hi) = (b.lo[a], b.hi[a]);
+                if hi - lo >= 2 * min {
+                    let mid = lo + (hi - lo) / 2;
+                    vec![(lo, mid), (mid, hi)]
+                } else {
+                    vec![(lo, hi)]
+                }
+            })
+        };
+        let Some(i) = (0..list.len())
+            .find(|&i| 2 * cost[i] > total && halves(&list[i]).iter().any(|h| h.len() == 2))
+        else {
+            return (list, cost);
+        };
+        let [xs, ys, zs] = halves(&list[i]);
+        let mut children = Vec::with_capacity(8);
+        for &(z0, z1) in &zs {
+            for &(y0, y1) in &ys {
+                for &(x0, x1) in &xs {
+                    children.push(Block {
+                        lo: [x0, y0, z0],
+                        hi: [x1, y1, z1],
+                    });
+                }
+            }
+        }
+        let costs: Vec<usize> = children.iter().map(&cost_of).collect();
+        list.splice(i..=i, children);
+        cost.splice(i..=i, costs);
+    }
+}
+
 /// About how many faces of the voxel boundary block `b` owns, from a sample of its voxel rows
 /// along x: in every `ESTIMATE_STRIDE`-th row along y and along z, the faces between its voxels
 /// and those between it and the rows below it along y and along z, scaled by the stride
@@ -269,6 +318,44 @@ mod tests {
             .collect();
         out.sort_unstable();
         out
+    }
+
+    /// A block holding more than half the cost is split into eight in its place, and again
+    /// while one does; blocks of balanced cost, and axes narrower than twice the least width,
+    /// are left whole; the split blocks still tile the grid.
+    #[test]
+    fn a_dominant_block_is_split_in_place() {
+        let list = blocks([256, 100, 300], 128); // 2 × 1 × 3 blocks
+        let volume = |b: &Block| (0..3).map(|a| b.hi[a] - b.lo[a]).product::<usize>();
+        // Balanced: nothing changes.
+        let cost: Vec<usize> = list.iter().map(volume).collect();
+        let (same, _) = split_dominant(list.clone(), cost, 32, volume);
+        assert_eq!(same, list);
+        // The surface all within 20 voxels of the grid's origin: the first block, then its
+        // first child, hold all of it; splitting stops at the least width.
+        let near_origin = |b: &Block| usize::from(b.lo.iter().all(|&x| x < 20)) * 1000;
+        let cost: Vec<usize> = list.iter().map(near_origin).collect();
+        let (split, costs) = split_dominant(list.clone(), cost, 32, near_origin);
+        assert_eq!(split[0].lo, [0, 0, 0]);
+        // x and z halved twice (128 → 32), y (101 wide) once: 50 is under twice 32.
+        assert_eq!(split[0].hi, [32, 50, 32]);
+        assert_eq!(split.len(), costs.len());
+        assert!(costs
+            .iter()
+            .all(|&c| 2 * c <= costs.iter().sum::<usize>() || c == costs[0]));
+        // Still a tiling of the grid's corners 0..=n: the volumes add up, no two overlap.
+        let whole: usize = list.iter().map(volume).sum();
+        assert_eq!(split.iter().map(volume).sum::<usize>(), whole);
+        for (i, a) in split.iter().enumerate() {
+            for b in &split[i + 1..] {
+                assert!(
+                    (0..3).any(|k| a.hi[k] <= b.lo[k] || b.hi[k] <= a.lo[k]),
+                    "{a:?} {b:?}"
+                );
+            }
+        }
+        // The last block along an axis keeps its far bound (n + 1).
+        assert!(split.iter().any(|b| b.hi == [257, 101, 301]));
     }
 
     /// The blocks' patches are the whole start mesh, triangle for triangle; a patch's locked

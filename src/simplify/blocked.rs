@@ -41,7 +41,7 @@ use super::queue::{Candidate, Queue};
 use super::state::{park, Crossings, Reject, Scratch, State};
 use super::{all_edges, check_radii, run_batches, SimplifyOptions, SimplifyStats};
 use super::{clusters, discs};
-use crate::mesh::blocks::{blocks, extract_block, faces_estimate, Block, Patch};
+use crate::mesh::blocks::{blocks, extract_block, faces_estimate, split_dominant, Block, Patch};
 use crate::mesh::classify::{Classifier, VoxelSet};
 use crate::mesh::Mesh;
 
@@ -50,6 +50,9 @@ use crate::mesh::Mesh;
 /// short. 256 against 128, with the groups and the clusters: 4-11% faster at n = 512 and 11-22%
 /// at n = 1500 on two cores, the same peak at n = 1500 (docs/design.md, "Why 256").
 pub const BLOCK_VOXELS: usize = 256;
+
+/// Least width (voxels) of a block that [`split_dominant`] makes.
+const SPLIT_AT_LEAST: usize = 32;
 
 /// After the blocks, groups of 2×2×2 of them (then of those groups, and so on) are simplified
 /// in parallel while a level has at least this many groups; the seam pass takes what is left.
@@ -130,7 +133,19 @@ fn simplify_boundary_with(
     stop: &(dyn Fn() -> bool + Sync),
 ) -> Option<Simplified> {
     check_radii(&opts);
+    // The costliest blocks first, by a sample of their faces, so that none of them is left
+    // to run alone at the end; a block holding more than half of all is split first.
     let list = blocks(set.dims(), block);
+    let cost: Vec<usize> = list.par_iter().map(|b| faces_estimate(set, b)).collect();
+    let whole = list.len();
+    let (list, cost) = split_dominant(list, cost, SPLIT_AT_LEAST, |b| faces_estimate(set, b));
+    if list.len() > whole {
+        tracing::info!(
+            "blocks holding more than half of the surface split in eight: {whole} blocks of \
+             {block} voxels became {}",
+            list.len()
+        );
+    }
     // With a target count, each block stops at its share of it (by start triangles), counted
     // first; groups stop at their blocks' shares together, the seam pass at the target itself.
     let shares = (opts.target_triangles > 0).then(|| {
@@ -144,9 +159,6 @@ fn simplify_boundary_with(
             .map(|&c| (opts.target_triangles * c).div_ceil(total))
             .collect::<Vec<_>>()
     });
-    // The costliest blocks first, by a sample of their faces, so that none of them is left
-    // to run alone at the end.
-    let cost: Vec<usize> = list.par_iter().map(|b| faces_estimate(set, b)).collect();
     // Progress for long runs: a line at every tenth of the blocks.
     let finished = AtomicUsize::new(0);
     let tenth = list.len().div_ceil(10).max(1);
@@ -188,7 +200,8 @@ fn simplify_boundary_with(
         }
         let what = if size == block { "blocks" } else { "groups" };
         tracing::info!(
-            "{} {what} of {size} voxels simplified: {triangles_start} start triangles down to {}",
+            "{} {what} of up to {size} voxels simplified: {triangles_start} start triangles down \
+             to {}",
             done.len(),
             done.iter().map(|d| d.mesh.triangles.len()).sum::<usize>()
         );
@@ -1045,6 +1058,92 @@ mod tests {
             }
         }
         assert!(deep > 100, "only {deep} deep points");
+    }
+
+    /// A grid whose surface lies almost all in one block (boxes in its low-x end): that block
+    /// is split ([`split_dominant`]), and the output is still a closed 2-manifold that winds
+    /// once around every point deep inside, the same on one thread and on four.
+    #[test]
+    fn a_block_holding_most_of_the_surface_is_split_and_stays_sound() {
+        let mut rng = fastrand::Rng::with_seed(11);
+        for seed in 0..3 {
+            let boxes: Vec<([f32; 3], [f32; 3])> = (0..4)
+                .map(|i| {
+                    let lo = [
+                        2.0 + 14.0 * i as f32,
+                        rng.u32(3..8) as f32,
+                        rng.u32(3..8) as f32,
+                    ];
+                    let hi = [lo[0] + rng.u32(4..11) as f32, lo[1] + 20.0, lo[2] + 20.0];
+                    (lo, hi)
+                })
+                .collect();
+            let dims = [100, 40, 40];
+            let cls = crate::mesh::classify::test_support::from_ranges(dims, |a, u, v| {
+                let (cu, rv) = (crate::depth::COLUMN_AXIS[a], crate::depth::ROW_AXIS[a]);
+                // Each ray's first box along it: boxes along x never share a y-z pixel pair's
+                // x range, and along y and z the first box met covers the ray's span of them.
+                boxes.iter().find_map(|(lo, hi)| {
+                    (u > lo[cu] && u < hi[cu] && v > lo[rv] && v < hi[rv])
+                        .then_some((lo[a] + 0.1, hi[a] - 0.1))
+                })
+            });
+            let joined = Joined::new(&cls);
+            let list = blocks(dims.map(|n| n as usize), 64);
+            let cost: Vec<usize> = list.iter().map(|b| faces_estimate(&joined, b)).collect();
+            let (split, _) = split_dominant(list.clone(), cost, SPLIT_AT_LEAST, |b| {
+                faces_estimate(&joined, b)
+            });
+            assert!(split.len() > list.len(), "seed {seed}: no block split");
+            let mut points = Vec::new();
+            let mut prox = crate::simplify::band::Proximity::new(&cls);
+            for x in 0..100 {
+                for y in 0..40 {
+                    for z in 0..40 {
+                        let p = DVec3::new(x as f64, y as f64, z as f64) + 0.5;
+                        let near = prox.nearest(p);
+                        if near.inside
+                            && near.centre_distances().0 > opts().tolerance.outside + 0.01
+                        {
+                            points.push([p, p]);
+                        }
+                    }
+                }
+            }
+            assert!(
+                points.len() > 100,
+                "seed {seed}: {} deep points",
+                points.len()
+            );
+            let pieces = Pieces::from_points(points.clone());
+            let run = |threads: usize| {
+                rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .unwrap()
+                    .install(|| {
+                        simplify_boundary(&joined, &cls, Some(&pieces), opts(), 64, &|| false)
+                            .unwrap()
+                    })
+            };
+            let (one, four) = (run(1), run(4));
+            assert_eq!(one.mesh, four.mesh, "seed {seed}");
+            let defects = one.mesh.manifold_defects();
+            assert!(
+                defects.is_manifold() && one.mesh.unpaired_edges().is_empty(),
+                "seed {seed}: {defects:?}"
+            );
+            let tris: Vec<[DVec3; 3]> = one
+                .mesh
+                .triangles
+                .iter()
+                .map(|t| t.map(|v| one.mesh.positions[v as usize]))
+                .collect();
+            for [p, _] in &points {
+                let w = super::super::pieces::winding(&tris, *p);
+                assert!((w - 1.0).abs() < 1e-6, "seed {seed}: winding {w} at {p}");
+            }
+        }
     }
 
     /// Jobs run once each, costliest first on one thread, and their results come back in
