@@ -60,8 +60,8 @@ pub fn blocks(dims: [usize; 3], size: usize) -> Vec<Block> {
 }
 
 /// `list` (with each block's `cost`) after splitting every block that holds more than half the
-/// total cost into its eight half-size children, in z, y, x order in its place, again until
-/// none does; an axis is halved only where the block is at least `2 * min` voxels wide. Such a
+/// total cost into its half-size children (eight, fewer where an axis is narrower than
+/// `2 * min` voxels and so not halved), in z, y, x order in its place, again until none does. Such a
 /// block would run alone while every other worker idles (a flat part whose one block holds two
 /// thirds of the surface: docs/perf-log.md, "The second case"). The rule reads costs
 /// only, so the blocks, and the result, do not depend on the thread count.
