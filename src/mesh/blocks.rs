@@ -61,8 +61,8 @@ pub fn blocks(dims: [usize; 3], size: usize) -> Vec<Block> {
 
 /// `list` (with each block's `cost`) after splitting every block that holds more than half the
 /// total cost into its half-size children (eight, fewer where an axis is narrower than
-/// `2 * min` voxels and so not halved), in z, y, x order in its place, again until none does. Such a
-/// block would run alone while every other worker idles (a flat part whose one block holds two
+/// `2 * min` voxels and so not halved), in z, y, x order in its place, again until none does.
+/// Such a block would run alone while every other worker idles (a flat part whose one block holds two
 /// thirds of the surface: docs/perf-log.md, "The second case"). The rule reads costs
 /// only, so the blocks, and the result, do not depend on the thread count.
 pub fn split_dominant(
@@ -320,7 +320,7 @@ mod tests {
         out
     }
 
-    /// A block holding more than half the cost is split into eight in its place, and again
+    /// A block holding more than half the cost is split into its children in its place, and again
     /// while one does; blocks of balanced cost, and axes narrower than twice the least width,
     /// are left whole; the split blocks still tile the grid.
     #[test]

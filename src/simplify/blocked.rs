@@ -141,8 +141,8 @@ fn simplify_boundary_with(
     let (list, cost) = split_dominant(list, cost, SPLIT_AT_LEAST, |b| faces_estimate(set, b));
     if list.len() > whole {
         tracing::info!(
-            "blocks holding more than half of the surface split in eight: {whole} blocks of \
-             {block} voxels became {}",
+            "blocks holding more than half of the surface split: {whole} blocks of {block} \
+             voxels became {}",
             list.len()
         );
     }
@@ -1003,6 +1003,18 @@ mod tests {
         );
     }
 
+    /// The classifier of boxes (lo, hi) no two of which share a pixel of any image: each ray
+    /// through a box holds its span, shrunk by 0.1.
+    fn from_boxes(dims: [u32; 3], boxes: &[([f32; 3], [f32; 3])]) -> Classifier {
+        crate::mesh::classify::test_support::from_ranges(dims, |a, u, v| {
+            let (cu, rv) = (crate::depth::COLUMN_AXIS[a], crate::depth::ROW_AXIS[a]);
+            boxes.iter().find_map(|(lo, hi)| {
+                (u > lo[cu] && u < hi[cu] && v > lo[rv] && v < hi[rv])
+                    .then_some((lo[a] + 0.1, hi[a] - 0.1))
+            })
+        })
+    }
+
     /// Small separate blobs (2 to 4 voxels wide), each with the points farther than the tolerance
     /// radius from every outside centre as a piece of "the swept volume" (no live triangle can
     /// reach them): the output winds once around every such point.
@@ -1020,13 +1032,7 @@ mod tests {
                     (lo, hi)
                 })
                 .collect();
-            let cls = crate::mesh::classify::test_support::from_ranges([28, 28, 28], |a, u, v| {
-                let (cu, rv) = (crate::depth::COLUMN_AXIS[a], crate::depth::ROW_AXIS[a]);
-                blobs.iter().find_map(|(lo, hi)| {
-                    (u > lo[cu] && u < hi[cu] && v > lo[rv] && v < hi[rv])
-                        .then_some((lo[a] + 0.1, hi[a] - 0.1))
-                })
-            });
+            let cls = from_boxes([28, 28, 28], &blobs);
             let joined = Joined::new(&cls);
             let mut points = Vec::new();
             let mut prox = crate::simplify::band::Proximity::new(&cls);
@@ -1062,32 +1068,31 @@ mod tests {
 
     /// A grid whose surface lies almost all in one block (boxes in its low-x end): that block
     /// is split ([`split_dominant`]), and the output is still a closed 2-manifold that winds
-    /// once around every point deep inside, the same on one thread and on four.
+    /// once around every point deep inside and not around any far outside, the same on one
+    /// thread and on four.
     #[test]
     fn a_block_holding_most_of_the_surface_is_split_and_stays_sound() {
         let mut rng = fastrand::Rng::with_seed(11);
         for seed in 0..3 {
+            // Boxes along the diagonal of the grid's low-x end, so that no two share a pixel
+            // of any image.
             let boxes: Vec<([f32; 3], [f32; 3])> = (0..4)
                 .map(|i| {
                     let lo = [
                         2.0 + 14.0 * i as f32,
-                        rng.u32(3..8) as f32,
-                        rng.u32(3..8) as f32,
+                        2.0 + 9.0 * i as f32,
+                        2.0 + 9.0 * i as f32,
                     ];
-                    let hi = [lo[0] + rng.u32(4..11) as f32, lo[1] + 20.0, lo[2] + 20.0];
+                    let hi = [
+                        lo[0] + rng.u32(6..11) as f32,
+                        lo[1] + rng.u32(5..8) as f32,
+                        lo[2] + rng.u32(5..8) as f32,
+                    ];
                     (lo, hi)
                 })
                 .collect();
             let dims = [100, 40, 40];
-            let cls = crate::mesh::classify::test_support::from_ranges(dims, |a, u, v| {
-                let (cu, rv) = (crate::depth::COLUMN_AXIS[a], crate::depth::ROW_AXIS[a]);
-                // Each ray's first box along it: boxes along x never share a y-z pixel pair's
-                // x range, and along y and z the first box met covers the ray's span of them.
-                boxes.iter().find_map(|(lo, hi)| {
-                    (u > lo[cu] && u < hi[cu] && v > lo[rv] && v < hi[rv])
-                        .then_some((lo[a] + 0.1, hi[a] - 0.1))
-                })
-            });
+            let cls = from_boxes(dims, &boxes);
             let joined = Joined::new(&cls);
             let list = blocks(dims.map(|n| n as usize), 64);
             let cost: Vec<usize> = list.iter().map(|b| faces_estimate(&joined, b)).collect();
@@ -1095,27 +1100,9 @@ mod tests {
                 faces_estimate(&joined, b)
             });
             assert!(split.len() > list.len(), "seed {seed}: no block split");
-            let mut points = Vec::new();
-            let mut prox = crate::simplify::band::Proximity::new(&cls);
-            for x in 0..100 {
-                for y in 0..40 {
-                    for z in 0..40 {
-                        let p = DVec3::new(x as f64, y as f64, z as f64) + 0.5;
-                        let near = prox.nearest(p);
-                        if near.inside
-                            && near.centre_distances().0 > opts().tolerance.outside + 0.01
-                        {
-                            points.push([p, p]);
-                        }
-                    }
-                }
-            }
-            assert!(
-                points.len() > 100,
-                "seed {seed}: {} deep points",
-                points.len()
-            );
-            let pieces = Pieces::from_points(points.clone());
+            let (deep, far) = deep_and_far(&cls, dims);
+            assert!(deep.len() > 100, "seed {seed}: {} deep points", deep.len());
+            let pieces = Pieces::from_points(deep.iter().map(|&p| [p, p]).collect());
             let run = |threads: usize| {
                 rayon::ThreadPoolBuilder::new()
                     .num_threads(threads)
@@ -1133,15 +1120,16 @@ mod tests {
                 defects.is_manifold() && one.mesh.unpaired_edges().is_empty(),
                 "seed {seed}: {defects:?}"
             );
-            let tris: Vec<[DVec3; 3]> = one
-                .mesh
-                .triangles
-                .iter()
-                .map(|t| t.map(|v| one.mesh.positions[v as usize]))
-                .collect();
-            for [p, _] in &points {
-                let w = super::super::pieces::winding(&tris, *p);
+            for p in &deep {
+                let w = winding_number(&one.mesh, *p);
                 assert!((w - 1.0).abs() < 1e-6, "seed {seed}: winding {w} at {p}");
+            }
+            for p in &far {
+                let w = winding_number(&one.mesh, *p);
+                assert!(
+                    w.abs() < 1e-6,
+                    "seed {seed}: winding {w} at {p} (far outside)"
+                );
             }
         }
     }
