@@ -479,6 +479,30 @@ pub(crate) mod test_support {
         })
     }
 
+    /// A classifier (unit voxels, origin 0) whose inside voxels are those `inside` names: any
+    /// voxel set, not only what depth images can describe.
+    pub fn from_voxels(dims: [u32; 3], inside: impl Fn([usize; 3]) -> bool) -> Classifier {
+        let grid = Grid {
+            origin: [0.0; 3],
+            h: 1.0,
+            dims,
+        };
+        let mut cls = Classifier::new(&DepthImages::empty(grid));
+        let mut bits = crate::voxels::VoxelBits::new(cls.dims);
+        let [nx, ny, nz] = cls.dims;
+        for k in 0..nz {
+            for j in 0..ny {
+                for i in 0..nx {
+                    if inside([i, j, k]) {
+                        bits.set(i, j, k);
+                    }
+                }
+            }
+        }
+        cls.solid = Some(bits);
+        cls
+    }
+
     /// A classifier whose pixels get random depth ranges around the middle 60% of each axis
     /// (one in a hundred none): the inside set is a rough block with deep parts, tunnels and many
     /// concavities, random but reproducible from `seed`.

@@ -7,6 +7,7 @@
 use glam::DVec3;
 
 use super::cover;
+use super::extruded::{Attempt, Extruded};
 use crate::mesh::classify::Classifier;
 
 /// Distances to ∂W are exact below this (the memo covers the 5×5×5 voxels around a point's
@@ -150,13 +151,15 @@ pub struct Proximity<'c> {
     /// (kept between calls: the order is asked once per checked step).
     largest_first: Vec<(f64, [DVec3; 3])>,
     tetrahedra: Refinement<4>,
+    /// Buffers of the certificate over walls extruded along an axis, kept between calls.
+    extruded: Extruded<'c>,
 }
 
 /// The work lists of one [`Proximity::refine`]: pieces to judge, each with the index of its
 /// parent's [`Near`] in `parents`, and the split of the piece last refined.
 #[derive(Default)]
 struct Refinement<const N: usize> {
-    stack: Vec<([DVec3; N], u32)>,
+    stack: Vec<([DVec3; N], u32, bool)>,
     parents: Vec<Near>,
     children: Vec<[DVec3; N]>,
 }
@@ -243,6 +246,7 @@ impl<'c> Proximity<'c> {
             triangles: Refinement::default(),
             tetrahedra: Refinement::default(),
             largest_first: Vec::new(),
+            extruded: Extruded::new(cls),
         }
     }
 
@@ -441,15 +445,17 @@ impl<'c> Proximity<'c> {
     /// lookup); otherwise it gets `judge(piece, R, nearest(c))`: pass, fail, or refine. A piece
     /// to refine with R < `r_min`, or more than [`NODE_BUDGET`] pieces in all, fails the
     /// region (not shown: always sound). `bare(piece, R)` may give a verdict first, without a
-    /// lookup, where R alone rules out a pass on distances; a piece it refines hands its own
-    /// parent's Near on to its children.
+    /// lookup, where R alone rules out a pass on distances or a whole-piece certificate passes
+    /// it; a piece it refines hands its own parent's Near on to its children. Each piece carries
+    /// a flag that `bare` may clear and the piece's children inherit (the triangle test's: "try
+    /// the extruded-wall certificate").
     #[allow(clippy::too_many_arguments)]
     fn refine<const N: usize, const BOUNDARY: bool>(
         &mut self,
         work: &mut Refinement<N>,
         start: [DVec3; N],
         r_min: f64,
-        bare: impl Fn(&Self, &[DVec3; N], f64) -> Option<Verdict>,
+        mut bare: impl FnMut(&mut Self, &[DVec3; N], f64, &mut bool) -> Option<Verdict>,
         mut judge: impl FnMut(&mut Self, &[DVec3; N], f64, &Near) -> Verdict,
         inherited: impl Fn(&[DVec3; N], &Near) -> bool,
         split: impl Fn(&[DVec3; N], &mut Vec<[DVec3; N]>),
@@ -461,9 +467,9 @@ impl<'c> Proximity<'c> {
         } = work;
         stack.clear();
         parents.clear();
-        stack.push((start, u32::MAX));
+        stack.push((start, u32::MAX, true));
         let mut visited = 0;
-        while let Some((piece, parent)) = stack.pop() {
+        while let Some((piece, parent, mut walls)) = stack.pop() {
             visited += 1;
             if visited > NODE_BUDGET {
                 return false;
@@ -477,14 +483,14 @@ impl<'c> Proximity<'c> {
                 .map(|x| (*x - c).length_squared())
                 .fold(0.0, f64::max)
                 .sqrt();
-            match bare(self, &piece, r) {
+            match bare(self, &piece, r, &mut walls) {
                 Some(Verdict::Pass) => continue,
                 Some(Verdict::Fail) => return false,
                 Some(Verdict::Refine) if r < r_min => return false,
                 Some(Verdict::Refine) => {
                     children.clear();
                     split(&piece, children);
-                    stack.extend(children.iter().map(|ch| (*ch, parent)));
+                    stack.extend(children.iter().map(|ch| (*ch, parent, walls)));
                     continue;
                 }
                 None => {}
@@ -499,7 +505,7 @@ impl<'c> Proximity<'c> {
                     split(&piece, children);
                     let at = parents.len() as u32;
                     parents.push(near);
-                    stack.extend(children.iter().map(|ch| (*ch, at)));
+                    stack.extend(children.iter().map(|ch| (*ch, at, walls)));
                 }
             }
         }
@@ -605,13 +611,21 @@ impl<'c> Proximity<'c> {
                 Verdict::Refine
             }
         };
-        let bare = |me: &Self, piece: &[DVec3; 3], r: f64| {
+        // A large piece flat on ∂W passes; else one over a wall extruded along an axis may
+        // (`extruded`), tried again on its children only where part of it was certified.
+        let bare = |me: &mut Self, piece: &[DVec3; 3], r: f64, walls: &mut bool| {
             (r > large).then(|| {
                 if me.on_boundary_plane(piece) {
-                    Verdict::Pass
-                } else {
-                    Verdict::Refine
+                    return Verdict::Pass;
                 }
+                if *walls {
+                    match me.extruded.within(piece, tol) {
+                        Attempt::Certified => return Verdict::Pass,
+                        Attempt::Partly => {}
+                        Attempt::No => *walls = false,
+                    }
+                }
+                Verdict::Refine
             })
         };
         let inherited = |piece: &[DVec3; 3], parent: &Near| parent.hugged(piece, tol);
@@ -682,7 +696,7 @@ impl<'c> Proximity<'c> {
             out.extend([left, right]);
         };
         let mut work = std::mem::take(&mut self.tetrahedra);
-        let none = |_: &Self, _: &[DVec3; 4], _: f64| None;
+        let none = |_: &mut Self, _: &[DVec3; 4], _: f64, _: &mut bool| None;
         let shallow = self.refine::<4, true>(&mut work, t, r_min, none, judge, inherited, split);
         self.tetrahedra = work;
         shallow

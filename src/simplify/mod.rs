@@ -43,6 +43,7 @@ pub mod blocked;
 mod clusters;
 mod cover;
 mod discs;
+mod extruded;
 pub(crate) mod intersect;
 pub mod pieces;
 mod quadric;
