@@ -26,6 +26,10 @@ use crate::mesh::classify::Classifier;
 /// A triangle spanning fewer layers than this along every axis is left to the 3D refinement (its
 /// area is small against its extent, so the reduction saves little).
 const FROM_LAYERS: f64 = 4.0;
+/// Tried only along an axis at most this steep to the triangle's plane (the sine of the angle:
+/// the projection's area over the triangle's). On a curved part the attempts cost more than
+/// the few triangles they certify (the bunny's vibration at n = 512: 15-20% slower without it).
+const MOST_TILT: f64 = 0.1;
 /// Pieces judged per triangle and axis before giving up.
 const NODE_BUDGET: usize = 1024;
 /// Pieces are not split below this circumradius (about their centroid).
@@ -238,6 +242,9 @@ impl<'c> Extruded<'c> {
         axes.sort_by(|&x, &y| n[x].total_cmp(&n[y]));
         let mut found = Attempt::No;
         for &a in &axes[..2] {
+            if n[a] > MOST_TILT * n.length() {
+                break; // the projection is not thin: the refinement costs less
+            }
             match self.within_along(t, tol, a) {
                 Attempt::Certified => return Attempt::Certified,
                 Attempt::Partly => found = Attempt::Partly,
@@ -438,8 +445,8 @@ mod tests {
         })
     }
 
-    /// A random triangle long along `axis`: two corners near one point of the boundary of the
-    /// region, one far along the axis, or a thin one at a random slope.
+    /// A random triangle long along `axis` with its corners in T: two near each other, one far
+    /// along the axis.
     fn wall_triangle(rng: &mut fastrand::Rng, cls: &Classifier, axis: usize) -> [DVec3; 3] {
         let n = cls.dims[0] as f64;
         loop {
@@ -448,9 +455,11 @@ mod tests {
             let step = 1.0 + 2.0 * rng.f64();
             q[(axis + 1) % 3] += step * (rng.f64() - 0.5) * 2.0;
             q[(axis + 2) % 3] += step * (rng.f64() - 0.5) * 2.0;
+            // Far along the axis, off it by at most a twentieth (within MOST_TILT of it).
             let mut far = p;
-            far[axis] += (rng.f64() - 0.5) * 30.0;
-            far[(axis + 1) % 3] += (rng.f64() - 0.5) * 2.0;
+            let along = (4.0 + 11.0 * rng.f64()) * if rng.bool() { 1.0 } else { -1.0 };
+            far[axis] += along;
+            far[(axis + 1) % 3] += (rng.f64() - 0.5) * along.abs() / 10.0;
             let t = [p, q, far.clamp(DVec3::ZERO, DVec3::splat(n))];
             // Keep triangles whose corners are near the boundary (in T, most of them).
             let tol = TOLERANCES[0];
