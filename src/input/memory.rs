@@ -30,7 +30,8 @@
 use crate::error::{OptionError, OptionKey};
 use crate::input::grid::Grid;
 
-/// Program, thread stacks, inputs and buffers outside the grid-sized structures.
+/// Program, thread stacks, inputs and buffers outside the grid-sized structures (among them the
+/// extruded-wall certificate's run cache, 1.5 MB per worker: `simplify::extruded`).
 const BASE_BYTES: f64 = 32.0 * 1048576.0;
 /// Depth images and classifier ranges, per pixel.
 const IMAGE_BYTES_PER_PIXEL: f64 = 16.0;

@@ -519,7 +519,9 @@ impl<'c> Proximity<'c> {
     /// - its corners are within `tol.outside` of one outside centre and within `tol.inside` of one
     ///   inside centre (c's own voxel's and the nearest other-class one's; a piece first tries
     ///   its parent's pair): the distance to a point is convex, so at most that over the piece; or
-    /// - it lies on ∂W ([`Self::on_boundary_plane`]), which T holds.
+    /// - it lies on ∂W ([`Self::on_boundary_plane`]), which T holds, or
+    /// - it is large and lies over a wall extruded along an axis, certified in the plane across
+    ///   that axis (`extruded`, docs/design.md "Walls extruded along an axis").
     ///
     /// It fails when c is farther than `tol` allows from the other class's centres (c itself is
     /// out). Pieces split into four at their edge midpoints. Sound: may reject, never wrongly
@@ -619,7 +621,7 @@ impl<'c> Proximity<'c> {
                     return Verdict::Pass;
                 }
                 if *walls {
-                    match me.extruded.within(piece, tol) {
+                    match me.extruded.within(piece, [tol.outside, tol.inside]) {
                         Attempt::Certified => return Verdict::Pass,
                         Attempt::Partly => {}
                         Attempt::No => *walls = false,
@@ -1148,6 +1150,26 @@ mod tests {
                 "{tol:?}: {accepted} accepted, {rejected} rejected"
             );
         }
+    }
+
+    /// Long triangles over a wall extruded along y pass the band test (which tries the
+    /// extruded-wall certificate on them whole), as the certificate alone says they lie in T.
+    #[test]
+    fn triangles_over_an_extruded_wall_pass_whole() {
+        use crate::simplify::extruded::tests::{tilted_wall, wall_triangles, TOLERANCES};
+        use crate::simplify::extruded::{Attempt, Extruded};
+        let [outside, inside] = TOLERANCES[0];
+        let tol = Tolerance { outside, inside };
+        let cls = tilted_wall(|_| 38);
+        let (mut prox, mut walls) = (Proximity::new(&cls), Extruded::new(&cls));
+        let mut passed = 0;
+        for t in wall_triangles(28.0) {
+            if walls.within(&t, TOLERANCES[0]) == Attempt::Certified {
+                assert!(prox.triangle_within(t, tol, 0.05), "{t:?}");
+                passed += 1;
+            }
+        }
+        assert!(passed >= 38, "{passed} of 40");
     }
 
     /// Splitting large pieces without a lookup changes no verdict: on random voxel sets the

@@ -20,7 +20,6 @@
 
 use glam::{DVec2, DVec3};
 
-use super::band::Tolerance;
 use crate::mesh::classify::Classifier;
 
 /// A triangle spanning fewer layers than this along every axis is left to the 3D refinement (its
@@ -233,10 +232,11 @@ impl<'c> Extruded<'c> {
         }
     }
 
-    /// Whether triangle `t` is certified to lie in `tol` by the columns along one of the two
+    /// Whether triangle `t` is certified to lie in T with `radii` (the distances to an outside
+    /// and an inside centre, `band::Tolerance`'s) by the columns along one of the two
     /// axes most nearly in its plane (module doc). Anything but `Certified` means only "not
     /// certified".
-    pub(super) fn within(&mut self, t: &[DVec3; 3], tol: Tolerance) -> Attempt {
+    pub(super) fn within(&mut self, t: &[DVec3; 3], radii: [f64; 2]) -> Attempt {
         let n = (t[1] - t[0]).cross(t[2] - t[0]).abs();
         let mut axes = [0, 1, 2];
         axes.sort_by(|&x, &y| n[x].total_cmp(&n[y]));
@@ -245,7 +245,7 @@ impl<'c> Extruded<'c> {
             if n[a] > MOST_TILT * n.length() {
                 break; // the projection is not thin: the refinement costs less
             }
-            match self.within_along(t, tol, a) {
+            match self.within_along(t, radii, a) {
                 Attempt::Certified => return Attempt::Certified,
                 Attempt::Partly => found = Attempt::Partly,
                 Attempt::No => {}
@@ -254,7 +254,7 @@ impl<'c> Extruded<'c> {
         found
     }
 
-    fn within_along(&mut self, t: &[DVec3; 3], tol: Tolerance, a: usize) -> Attempt {
+    fn within_along(&mut self, t: &[DVec3; 3], radii: [f64; 2], a: usize) -> Attempt {
         let lo_a = t.iter().map(|p| p[a]).fold(f64::INFINITY, f64::min);
         let hi_a = t.iter().map(|p| p[a]).fold(f64::NEG_INFINITY, f64::max);
         if hi_a - lo_a < FROM_LAYERS {
@@ -275,7 +275,7 @@ impl<'c> Extruded<'c> {
             self.runs = vec![Run::default(); RUN_SLOTS];
         }
         let radius2 = |r: f64| r * r - 0.25 - ROUNDING;
-        let (out2, in2) = (radius2(tol.outside), radius2(tol.inside));
+        let [out2, in2] = radii.map(radius2);
         // A column s steps from c's has its centre at least s - 1/2 from c.
         let reach = (out2.max(in2).sqrt() + 0.5).floor().min(2.0) as isize;
         let mut window = Window {
@@ -388,31 +388,33 @@ impl<'c> Extruded<'c> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::mesh::classify::test_support::from_voxels;
-    use crate::simplify::band::{dist_to_centre, Proximity};
 
-    /// The default radii's tolerance (ε = 0.6, grid units) and two uneven ones.
-    const TOLERANCES: [Tolerance; 3] = [
-        Tolerance {
-            outside: 0.6 + 0.866_025_403_784_438_6,
-            inside: 0.6 + 0.866_025_403_784_438_6,
-        },
-        Tolerance {
-            outside: 1.2,
-            inside: 1.9,
-        },
-        Tolerance {
-            outside: 2.2,
-            inside: 0.95,
-        },
+    /// Radii (outside, inside): the default radii's (ε = 0.6, grid units) and two uneven ones.
+    pub(crate) const TOLERANCES: [[f64; 2]; 3] = [
+        [0.6 + 0.866_025_403_784_438_6, 0.6 + 0.866_025_403_784_438_6],
+        [1.2, 1.9],
+        [2.2, 0.95],
     ];
 
-    /// Brute force: whether `p` lies in the tolerance volume.
-    fn in_volume(cls: &Classifier, p: DVec3, tol: Tolerance) -> bool {
-        dist_to_centre(cls, p, false, tol.outside).is_some()
-            && dist_to_centre(cls, p, true, tol.inside).is_some()
+    /// Brute force: whether `p` is within `limit` of the centre of a voxel of class `inside`.
+    fn near_class(cls: &Classifier, p: DVec3, inside: bool, limit: f64) -> bool {
+        let (lo, hi) = ((p - limit - 0.5).floor(), (p + limit + 0.5).floor());
+        (lo.z as isize..=hi.z as isize).any(|k| {
+            (lo.y as isize..=hi.y as isize).any(|j| {
+                (lo.x as isize..=hi.x as isize).any(|i| {
+                    let c = DVec3::new(i as f64, j as f64, k as f64) + 0.5;
+                    cls.inside(i, j, k) == inside && (p - c).length() <= limit
+                })
+            })
+        })
+    }
+
+    /// Brute force: whether `p` lies in the tolerance volume of `radii`.
+    fn in_volume(cls: &Classifier, p: DVec3, radii: [f64; 2]) -> bool {
+        near_class(cls, p, false, radii[0]) && near_class(cls, p, true, radii[1])
     }
 
     /// A voxel set extruded along `axis` over layers `layers` (a random 2D region across it: a
@@ -520,38 +522,42 @@ mod tests {
         }
     }
 
-    /// What the certificate is for: long triangles on a tilted wall extruded along y (a digital
-    /// plane's staircase, as the gear's tooth flanks leave) are certified whole, and the 3D
-    /// test, which now tries it, agrees with the refinement alone on every one of them. On the
-    /// same wall with its top layer cut at a slant (the columns near the top no longer uniform
-    /// over the triangle's layers) the whole triangle is not certified along y.
+    /// A wall extruded along y: inside where 0.37 x + z < 9.3 and y in 2..top(x) (a digital
+    /// plane's staircase, as the gear's tooth flanks leave), on a 24 × 40 × 24 grid.
+    pub(crate) fn tilted_wall(top: impl Fn(usize) -> usize) -> Classifier {
+        from_voxels([24, 40, 24], |v| {
+            let (x, z) = (v[0] as f64 + 0.5, v[2] as f64 + 0.5);
+            0.37 * x + z < 9.3 && (2..top(v[0])).contains(&v[1])
+        })
+    }
+
+    /// Forty long triangles on [`tilted_wall`]'s plane, from y = 4 to y = `top`.
+    pub(crate) fn wall_triangles(top: f64) -> impl Iterator<Item = [DVec3; 3]> {
+        let on_wall = |x: f64, y: f64| DVec3::new(x, y, 9.3 - 0.37 * x);
+        (0..40).map(move |k| {
+            let (x0, x1) = (2.0 + 0.3 * k as f64, 12.0 + 0.2 * k as f64);
+            [on_wall(x0, 4.0), on_wall(x1, 5.0), on_wall(x0 + 1.0, top)]
+        })
+    }
+
+    /// What the certificate is for: long triangles on a tilted wall extruded along y are
+    /// certified whole (`band::tests` checks that the band test passes them). On the same wall
+    /// with its top cut at a slant (the columns near the top no longer uniform over the
+    /// triangle's layers) the triangles reaching the top are not certified whole along y.
     #[test]
     fn long_triangles_on_an_extruded_wall_are_certified() {
-        let tol = TOLERANCES[0];
-        let (a, b, c) = (0.37, 1.0, 9.3); // inside: 0.37 x + z < 9.3
-        let wall = |v: [usize; 3], top: usize| {
-            let (x, z) = (v[0] as f64 + 0.5, v[2] as f64 + 0.5);
-            a * x + b * z < c && (2..top).contains(&v[1])
-        };
-        let cls = from_voxels([24, 40, 24], |v| wall(v, 38));
-        let slanted = from_voxels([24, 40, 24], |v| wall(v, 30 + v[0] / 3));
-        let on_wall = |x: f64, y: f64| DVec3::new(x, y, (c - a * x) / b);
-        let (mut walls, mut cut) = (Extruded::new(&cls), Extruded::new(&slanted));
-        let mut prox = Proximity::new(&cls);
-        let mut certified = 0;
-        for k in 0..40 {
-            let (x0, x1) = (2.0 + 0.3 * k as f64, 12.0 + 0.2 * k as f64);
-            let t = [on_wall(x0, 4.0), on_wall(x1, 5.0), on_wall(x0 + 1.0, 28.0)];
-            if walls.within(&t, tol) == Attempt::Certified {
-                certified += 1;
-                assert!(prox.triangle_within(t, tol, 0.05), "{t:?}");
-            }
-            assert_ne!(
-                cut.within_along(&[t[0], t[1], on_wall(x0 + 1.0, 36.0)], tol, 1),
-                Attempt::Certified
-            );
-        }
+        let radii = TOLERANCES[0];
+        let wall = tilted_wall(|_| 38);
+        let mut walls = Extruded::new(&wall);
+        let certified = wall_triangles(28.0)
+            .filter(|t| walls.within(t, radii) == Attempt::Certified)
+            .count();
         assert!(certified >= 38, "{certified} of 40 certified");
+        let slanted = tilted_wall(|x| 30 + x / 3);
+        let mut cut = Extruded::new(&slanted);
+        for t in wall_triangles(36.0) {
+            assert_ne!(cut.within_along(&t, radii, 1), Attempt::Certified, "{t:?}");
+        }
     }
 
     /// A run cache slot answers only for its own column and layers: classes read through the
