@@ -329,8 +329,9 @@ fn run_batches(
         );
         ready = next.iter().map(|r| (r.a, r.b)).zip(checked).collect();
         (next, deferred) = (gathered, later);
-        // An empty batch means an empty queue: a candidate is deferred only for meeting the
-        // regions of this batch or of the one before.
+        // An empty batch after an empty one means an empty queue: a candidate is deferred only
+        // for meeting the regions of this batch or of the one before, so that gather took the
+        // first current candidate (its cap on deferrals was not reached before it).
         if ready.is_empty() && next.is_empty() {
             break;
         }
@@ -733,8 +734,9 @@ mod tests {
         }
     }
 
-    /// Batches in flight never share a vertex of their regions, and the first batch is full:
-    /// three batches gathered back to back from a fresh block, each against the one before.
+    /// Batches in flight never share a vertex of their regions, and the first batch is full
+    /// (later ones are, or stopped at the cap on deferrals): three batches gathered back to
+    /// back from a fresh block, each against the one before.
     #[test]
     fn batches_in_flight_have_disjoint_regions() {
         let cls = boxed([30, 30, 30], [2.0, 2.0, 2.0], [28.0, 28.0, 28.0]);
@@ -763,7 +765,12 @@ mod tests {
         let mut deferred = 0;
         for round in 0..3 {
             let (batch, later) = gatherer.gather(&s, &mut heap);
-            assert_eq!(batch.len(), BATCH, "round {round}: a full batch");
+            assert!(
+                batch.len() == BATCH || (round > 0 && later.len() == batch::DEFER_AT_MOST),
+                "round {round}: a batch of {} with {} deferred",
+                batch.len(),
+                later.len()
+            );
             let mut here = vertices(&batch);
             let count = here.len();
             here.dedup();
@@ -783,6 +790,47 @@ mod tests {
             deferred < total / 2,
             "{deferred} of {total} candidates deferred"
         );
+    }
+
+    /// A gather defers at most `DEFER_AT_MOST` candidates and loses none: gathered back to back
+    /// with nothing committed and the deferred ones queued again, every edge of a box is
+    /// batched exactly once, and the late gathers, whose queue lies around the batches in
+    /// flight, stop at the cap.
+    #[test]
+    fn gathers_stop_at_the_cap_and_lose_no_candidate() {
+        let cls = boxed([14, 14, 14], [2.0, 2.0, 2.0], [12.0, 12.0, 12.0]);
+        let s = State::new(extract(&cls));
+        let all = all_edges(&s);
+        let total = all.len();
+        let mut heap = Queue::new(all);
+        let mut gatherer = Gatherer::new(s.pos.len());
+        let mut batched: Vec<(u32, u32)> = Vec::new();
+        let mut capped = 0;
+        loop {
+            let (batch, later) = gatherer.gather(&s, &mut heap);
+            assert!(
+                later.len() <= batch::DEFER_AT_MOST,
+                "{} deferred",
+                later.len()
+            );
+            capped += usize::from(later.len() == batch::DEFER_AT_MOST);
+            if batch.is_empty() && later.is_empty() {
+                break;
+            }
+            batched.extend(batch.iter().map(|r| (r.a, r.b)));
+            for c in later {
+                s.push(&mut heap, c);
+            }
+        }
+        let count = batched.len();
+        batched.sort_unstable();
+        batched.dedup();
+        assert_eq!(
+            (count, batched.len()),
+            (total, total),
+            "every edge batched once"
+        );
+        assert!(capped > 0, "no gather reached the cap: the test misses it");
     }
 
     #[test]

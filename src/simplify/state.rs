@@ -122,16 +122,19 @@ impl State {
             slot[t] = facets.len() as u32;
             facets.push((t, Facet::new((ids, ids.map(|x| self.pos[x as usize])))));
         }
+        // A triangle filed under several of the cells near t is tested once: `seen[u]` holds
+        // the slot of the last triangle u was tested against (no sort of the lists).
+        let mut seen = vec![u32::MAX; self.tris.len()];
         let (mut near, mut pairs) = (Vec::new(), Vec::new());
-        for (t, me) in &facets {
+        for (i, (t, me)) in facets.iter().enumerate() {
             hash.near(&me.at, &mut near);
-            near.sort_unstable();
-            near.dedup();
             for &u in &near {
-                if u as usize > *t
-                    && slot[u as usize] != u32::MAX
-                    && me.meets(&facets[slot[u as usize] as usize].1)
-                {
+                let u_at = u as usize;
+                if u_at <= *t || slot[u_at] == u32::MAX || seen[u_at] == i as u32 {
+                    continue;
+                }
+                seen[u_at] = i as u32;
+                if me.meets(&facets[slot[u_at] as usize].1) {
                     pairs.push((*t as u32, u));
                     if first {
                         return pairs;
@@ -139,6 +142,7 @@ impl State {
                 }
             }
         }
+        pairs.sort_unstable();
         pairs
     }
 
