@@ -10,7 +10,9 @@
 //! - the simplifier, block by block (`simplify::blocked`): each worker thread holds one block's
 //!   patch of the voxel boundary and its state, at most about 250 B per triangle for
 //!   8.4·B² triangles (B = 256 voxels: 138 MB); the blocks' results, welded, and the seam pass's
-//!   state on them: 250 B per triangle for `SEAM_SHARE` (4 %) of the start triangles, T ≈ 2.8P
+//!   state on them (with the welded start kept for a pass done again, about 60 B a triangle
+//!   more, within the share's margin over the 2.2-2.4% measured): 250 B per triangle for
+//!   `SEAM_SHARE` (4 %) of the start triangles, T ≈ 2.8P
 //!   (each hit pixel's ray enters and leaves the volume at least once, two triangles per face;
 //!   2.83P measured on the bundled bunny at n = 1024 and 1500);
 //! - with --keep-start-mesh, the whole voxel boundary at once and its GLB bytes: 54 B per start

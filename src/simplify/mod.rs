@@ -154,9 +154,9 @@ pub struct SimplifyStats {
     pub discs: u64,
     #[serde(default)]
     pub disc_vertices: u64,
-    /// Blocks and groups of blocks whose pass, with crossings tested against the neighbours
-    /// only, ended with a crossing pair and was done again testing every near triangle
-    /// (`blocked`).
+    /// Blocks, groups of blocks and seam passes whose pass, with crossings tested against the
+    /// neighbours only, ended with a crossing pair and was done again testing every near
+    /// triangle (`blocked`).
     #[serde(default)]
     pub blocks_redone: u64,
     /// Clusters made one vertex at a block's start (`clusters`), summed over its levels (a
