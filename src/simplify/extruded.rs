@@ -341,20 +341,15 @@ impl<'c> Extruded<'c> {
                 if *done {
                     continue;
                 }
-                let Some((col, d2)) = near else {
+                // No uniform column of the class near enough: the whole triangle fails here,
+                // a piece hands back what its siblings certified.
+                let Some((col, d2)) = near.filter(|&(_, d2)| d2 <= limit2) else {
                     return if judged == 1 {
                         Attempt::No
                     } else {
                         Attempt::Partly
                     };
                 };
-                if d2 > limit2 {
-                    return if judged == 1 {
-                        Attempt::No
-                    } else {
-                        Attempt::Partly
-                    };
-                }
                 let slack = limit2.sqrt() - d2.sqrt();
                 *done = r <= slack || corners_within(&piece.q, col, limit2);
                 *hint = Some(col);
