@@ -11,7 +11,7 @@ use super::quadric::{cheapest, Quadric};
 use super::queue::{bucket, Candidate, Queue};
 // Scratch, IdSet, Plan and Reject live with the checks that make them (region.rs), which
 // import nothing from here.
-pub(super) use super::region::{Crossing, Plan, Region, Reject, Scratch};
+pub(super) use super::region::{Crossing, IdSet, Plan, Region, Reject, Scratch};
 use super::{regrow, SimplifyStats, HASH_CELL};
 use crate::mesh::Mesh;
 use crate::voxels::KeyHasher;
@@ -122,19 +122,16 @@ impl State {
             slot[t] = facets.len() as u32;
             facets.push((t, Facet::new((ids, ids.map(|x| self.pos[x as usize])))));
         }
-        // A triangle filed under several of the cells near t is tested once: `seen[u]` holds
-        // the slot of the last triangle u was tested against (no sort of the lists).
-        let mut seen = vec![u32::MAX; self.tris.len()];
+        // A triangle filed under several of the cells near t is tested once (no sort of the
+        // lists); the pairs are sorted at the end.
+        let mut seen = IdSet::new(self.tris.len());
         let (mut near, mut pairs) = (Vec::new(), Vec::new());
-        for (i, (t, me)) in facets.iter().enumerate() {
+        for (t, me) in &facets {
             hash.near(&me.at, &mut near);
+            near.retain(|&u| u as usize > *t && slot[u as usize] != u32::MAX);
+            seen.keep_first(&mut near);
             for &u in &near {
-                let u_at = u as usize;
-                if u_at <= *t || slot[u_at] == u32::MAX || seen[u_at] == i as u32 {
-                    continue;
-                }
-                seen[u_at] = i as u32;
-                if me.meets(&facets[slot[u_at] as usize].1) {
+                if me.meets(&facets[slot[u as usize] as usize].1) {
                     pairs.push((*t as u32, u));
                     if first {
                         return pairs;
