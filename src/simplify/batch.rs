@@ -1,8 +1,12 @@
 //! Batches of candidates whose regions are disjoint, so that they can be checked together.
 
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
+
 use super::queue::{Candidate, Queue};
 use super::region::Region;
 use super::state::State;
+use super::state::{Plan, Reject};
 use super::BATCH;
 
 /// A gather stops after deferring this many candidates. Late in a seam pass most of the queue
@@ -10,6 +14,14 @@ use super::BATCH;
 /// quadratic in its queue (the gear at n = 512: 3.06 M candidates popped for 1,257 batches,
 /// 2.99 M of them deferred; docs/perf-log.md, "Gathers that stop").
 pub(super) const DEFER_AT_MOST: usize = 4 * BATCH;
+
+/// Batches gathered and not yet committed, the one being gathered included: its regions are
+/// disjoint from theirs, so their checks run side by side and its regions can be read from
+/// the mesh before they commit (a commit changes only triangles whose vertices all lie in its
+/// regions). Three and four measured no faster than two on the gear's seam pass (more batches
+/// queued, but each gathered against more regions: docs/perf-log.md, "The seam pass's checks
+/// queued").
+pub(super) const IN_FLIGHT: u32 = 2;
 
 /// Draws batches from the queue: candidates still current whose regions (a, b and their
 /// neighbours) meet no region in flight.
@@ -21,19 +33,19 @@ pub(super) struct Gatherer {
 }
 
 impl Gatherer {
-    /// For a mesh of `n` vertices. Batches are numbered from 2 up, and batch k conflicts with
-    /// the stamps k and k - 1: the initial stamps, 0, with none.
+    /// For a mesh of `n` vertices. Batches are numbered from `IN_FLIGHT` up, and batch k
+    /// conflicts with the stamps k - IN_FLIGHT + 1 to k: the initial stamps, 0, with none.
     pub(super) fn new(n: usize) -> Self {
         Gatherer {
             stamp: vec![0; n],
-            batch_no: 1,
+            batch_no: IN_FLIGHT - 1,
             region: Vec::new(),
         }
     }
 
     /// The next batch (up to [`BATCH`] regions, cheapest first) and the candidates deferred
-    /// because their regions meet this batch's or the previous one's (not yet committed):
-    /// they go back to the queue once that one commits. At most [`DEFER_AT_MOST`] are
+    /// because their regions meet this batch's or one of the `IN_FLIGHT - 1` before it (not
+    /// yet committed): they go back to the queue at the next commit. At most [`DEFER_AT_MOST`] are
     /// deferred; the batch is then what was found before them.
     pub(super) fn gather(&mut self, s: &State, heap: &mut Queue) -> (Vec<Region>, Vec<Candidate>) {
         self.batch_no += 1;
@@ -47,7 +59,10 @@ impl Gatherer {
             region.clear();
             s.star_vertices(c.a as usize, region);
             s.star_vertices(c.b as usize, region);
-            if region.iter().any(|&x| self.stamp[x] + 1 >= self.batch_no) {
+            if region
+                .iter()
+                .any(|&x| self.stamp[x] + IN_FLIGHT > self.batch_no)
+            {
                 deferred.push(c);
                 continue;
             }
@@ -57,5 +72,60 @@ impl Gatherer {
             batch.push(s.region(c.a, c.b));
         }
         (batch, deferred)
+    }
+}
+
+/// One outcome of a region's local checks.
+type Outcome = Result<Plan, Reject>;
+
+/// A batch whose regions' local checks run as tasks on the pool; [`Self::wait`] collects them
+/// in the batch's order, running queued tasks (this batch's or a later one's) while it waits.
+pub(super) struct InFlight {
+    keys: Vec<(u32, u32)>,
+    slots: Arc<Vec<Mutex<Option<Outcome>>>>,
+    left: Arc<AtomicUsize>,
+}
+
+impl InFlight {
+    /// Queues `check` of every region of `batch` on `pool`, oldest first.
+    pub(super) fn start<'s, F>(
+        pool: &rayon::ScopeFifo<'s>,
+        batch: Vec<Region>,
+        check: &'s F,
+    ) -> Self
+    where
+        F: Fn(&Region) -> Outcome + Sync,
+    {
+        let keys = batch.iter().map(|r| (r.a, r.b)).collect();
+        let slots: Arc<Vec<_>> = Arc::new(batch.iter().map(|_| Mutex::new(None)).collect());
+        let left = Arc::new(AtomicUsize::new(batch.len()));
+        for (i, region) in batch.into_iter().enumerate() {
+            let (slots, left) = (slots.clone(), left.clone());
+            pool.spawn_fifo(move |_| {
+                *slots[i].lock().expect("one writer") = Some(check(&region));
+                left.fetch_sub(1, Ordering::Release);
+            });
+        }
+        InFlight { keys, slots, left }
+    }
+
+    pub(super) fn is_empty(&self) -> bool {
+        self.keys.is_empty()
+    }
+
+    /// The candidates' edges and their outcomes, in the batch's order, once every check ran.
+    /// Must be called on a thread of the pool the checks were queued on.
+    pub(super) fn wait(self) -> (Vec<(u32, u32)>, Vec<Outcome>) {
+        while self.left.load(Ordering::Acquire) > 0 {
+            match rayon::yield_now() {
+                Some(rayon::Yield::Executed) => {}
+                Some(rayon::Yield::Idle) => std::thread::yield_now(),
+                None => unreachable!("InFlight::wait runs on a thread of the pool"),
+            }
+        }
+        let outcomes = (self.slots.iter())
+            .map(|slot| slot.lock().expect("one writer").take().expect("checked"))
+            .collect();
+        (self.keys, outcomes)
     }
 }

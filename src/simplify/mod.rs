@@ -27,7 +27,7 @@
 //! checks one candidate at a time per block, and once per block remeshes whole disc patches in
 //! one checked step (`discs`).
 
-use std::collections::HashMap;
+use std::collections::{HashMap, VecDeque};
 use std::sync::Mutex;
 
 use rayon::prelude::*;
@@ -51,9 +51,10 @@ mod queue;
 mod region;
 mod state;
 
-use batch::Gatherer;
+use batch::{Gatherer, InFlight};
 use pieces::Pieces;
 use queue::Queue;
+use region::Region;
 use state::{Plan, Reject, Scratch, State};
 
 /// Candidates checked together (in parallel); results do not depend on the thread count.
@@ -279,64 +280,65 @@ fn run_batches(
         scratches[worker].lock().expect("one user per worker")
     };
     let mut gatherer = Gatherer::new(s.pos.len());
-    // A pipeline of batches: while one commits, the next gets its local checks (on copies of
-    // its regions, disjoint from those in flight); its self-intersection checks, which read the
-    // committed mesh, run while the one after it is gathered. Batches, and so the result, do
-    // not depend on the thread count.
-    let mut ready: Vec<((u32, u32), Result<Plan, Reject>)> = Vec::new();
-    let (mut next, mut deferred) = gatherer.gather(&s, &mut heap);
-    // Progress on long passes (the seam pass at n = 4096 runs for minutes): a line every
-    // `PROGRESS_EVERY`.
-    let mut said = std::time::Instant::now();
-    loop {
-        if stop() {
-            return None;
+    // A pipeline of batches: the local checks of the batches in flight (on copies of their
+    // regions, disjoint from one another) run as tasks on the pool while the oldest checked
+    // batch commits and the next one is gathered, so a thread that finishes its share takes up
+    // a later batch's checks instead of waiting for the slowest region. The self-intersection
+    // checks read the committed mesh. Batches, and so the result, do not depend on the thread
+    // count or on the order in which the tasks run.
+    let check = |r: &Region| r.check(&mut scratch(), &opts, r.target());
+    rayon::scope_fifo(|pool| {
+        let mut ready: Vec<((u32, u32), Result<Plan, Reject>)> = Vec::new();
+        let mut in_flight = VecDeque::new();
+        let mut deferred = Vec::new();
+        for _ in 1..batch::IN_FLIGHT {
+            let (batch, later) = gatherer.gather(&s, &mut heap);
+            in_flight.push_back(InFlight::start(pool, batch, &check));
+            deferred.extend(later);
         }
-        if said.elapsed() >= PROGRESS_EVERY {
-            said = std::time::Instant::now();
-            tracing::info!(
-                "simplifying: {} triangles left after {} collapses",
-                s.live_tris,
-                s.stats.collapses
-            );
+        // Progress on long passes (the seam pass at n = 4096 runs for minutes): a line every
+        // `PROGRESS_EVERY`.
+        let mut said = std::time::Instant::now();
+        loop {
+            if stop() {
+                return None;
+            }
+            if said.elapsed() >= PROGRESS_EVERY {
+                said = std::time::Instant::now();
+                tracing::info!(
+                    "simplifying: {} triangles left after {} collapses",
+                    s.live_tris,
+                    s.stats.collapses
+                );
+            }
+            let target = opts.target_triangles;
+            if s.commit_batch(&mut heap, &mut parked, ready, deferred, target) {
+                break;
+            }
+            let (gathered, later) = gatherer.gather(&s, &mut heap);
+            in_flight.push_back(InFlight::start(pool, gathered, &check));
+            deferred = later;
+            let (keys, local) = in_flight.pop_front().expect("batches in flight").wait();
+            let checked: Vec<_> = local
+                .into_par_iter()
+                .map(|outcome| {
+                    let plan = outcome?;
+                    if !plan.in_plane {
+                        s.crosses_nothing(&mut scratch().crossing, &plan)?;
+                    }
+                    Ok(plan)
+                })
+                .collect();
+            ready = keys.into_iter().zip(checked).collect();
+            // Empty batches in flight after an empty one mean an empty queue: a candidate is
+            // deferred only for meeting the regions in flight, so the last gather took the
+            // first current candidate (its cap on deferrals was not reached before it).
+            if ready.is_empty() && deferred.is_empty() && in_flight.iter().all(InFlight::is_empty) {
+                break;
+            }
         }
-        let target = opts.target_triangles;
-        let (reached, local) = rayon::join(
-            || s.commit_batch(&mut heap, &mut parked, ready, deferred, target),
-            || {
-                next.par_iter()
-                    .map(|r| r.check(&mut scratch(), &opts, r.target()))
-                    .collect::<Vec<_>>()
-            },
-        );
-        if reached {
-            break;
-        }
-        let ((gathered, later), checked) = rayon::join(
-            || gatherer.gather(&s, &mut heap),
-            || {
-                local
-                    .into_par_iter()
-                    .map(|outcome| {
-                        let plan = outcome?;
-                        if !plan.in_plane {
-                            s.crosses_nothing(&mut scratch().crossing, &plan)?;
-                        }
-                        Ok(plan)
-                    })
-                    .collect::<Vec<_>>()
-            },
-        );
-        ready = next.iter().map(|r| (r.a, r.b)).zip(checked).collect();
-        (next, deferred) = (gathered, later);
-        // An empty batch after an empty one means an empty queue: a candidate is deferred only
-        // for meeting the regions of this batch or of the one before, so that gather took the
-        // first current candidate (its cap on deferrals was not reached before it).
-        if ready.is_empty() && next.is_empty() {
-            break;
-        }
-    }
-    Some(s)
+        Some(s)
+    })
 }
 
 #[cfg(test)]
@@ -735,8 +737,8 @@ mod tests {
     }
 
     /// Batches in flight never share a vertex of their regions, and the first batch is full
-    /// (later ones are, or stopped at the cap on deferrals): three batches gathered back to
-    /// back from a fresh block, each against the one before.
+    /// (later ones are, or stopped at the cap on deferrals): four batches gathered back to
+    /// back from a fresh block, each against the `IN_FLIGHT - 1` before it.
     #[test]
     fn batches_in_flight_have_disjoint_regions() {
         let cls = boxed([30, 30, 30], [2.0, 2.0, 2.0], [28.0, 28.0, 28.0]);
@@ -761,9 +763,9 @@ mod tests {
             v.sort_unstable();
             v
         };
-        let mut previous: Vec<u32> = Vec::new();
+        let mut previous: VecDeque<Vec<u32>> = VecDeque::new();
         let mut deferred = 0;
-        for round in 0..3 {
+        for round in 0..4 {
             let (batch, later) = gatherer.gather(&s, &mut heap);
             assert!(
                 batch.len() == BATCH || (round > 0 && later.len() == batch::DEFER_AT_MOST),
@@ -780,11 +782,14 @@ mod tests {
                 "round {round}: regions of one batch overlap"
             );
             assert!(
-                here.iter().all(|v| previous.binary_search(v).is_err()),
-                "round {round}: a region meets the batch in flight"
+                (previous.iter()).all(|p| here.iter().all(|v| p.binary_search(v).is_err())),
+                "round {round}: a region meets a batch in flight"
             );
             deferred += later.len();
-            previous = here;
+            previous.push_back(here);
+            if previous.len() == batch::IN_FLIGHT as usize {
+                previous.pop_front();
+            }
         }
         assert!(
             deferred < total / 2,
