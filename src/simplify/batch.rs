@@ -75,6 +75,15 @@ impl Gatherer {
     }
 }
 
+/// Counts a task done when dropped: when it returns, and when it unwinds.
+struct Done(Arc<AtomicUsize>);
+
+impl Drop for Done {
+    fn drop(&mut self) {
+        self.0.fetch_sub(1, Ordering::Release);
+    }
+}
+
 /// One outcome of a region's local checks.
 type Outcome = Result<Plan, Reject>;
 
@@ -100,10 +109,10 @@ impl InFlight {
         let slots: Arc<Vec<_>> = Arc::new(batch.iter().map(|_| Mutex::new(None)).collect());
         let left = Arc::new(AtomicUsize::new(batch.len()));
         for (i, region) in batch.into_iter().enumerate() {
-            let (slots, left) = (slots.clone(), left.clone());
+            let (slots, done) = (slots.clone(), Done(left.clone()));
             pool.spawn_fifo(move |_| {
+                let _done = done; // counted even if the check panics, so no wait hangs
                 *slots[i].lock().expect("one writer") = Some(check(&region));
-                left.fetch_sub(1, Ordering::Release);
             });
         }
         InFlight { keys, slots, left }
@@ -124,7 +133,10 @@ impl InFlight {
             }
         }
         let outcomes = (self.slots.iter())
-            .map(|slot| slot.lock().expect("one writer").take().expect("checked"))
+            .map(|slot| {
+                let mut outcome = slot.lock().expect("a check that panicked");
+                outcome.take().expect("a check that panicked")
+            })
             .collect();
         (self.keys, outcomes)
     }

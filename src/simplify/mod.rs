@@ -797,6 +797,72 @@ mod tests {
         );
     }
 
+    /// The local checks of a batch in flight come back in the batch's order whichever thread
+    /// ran them and however long each took, and a check that panics makes the wait panic
+    /// instead of waiting forever for it.
+    #[test]
+    fn checks_in_flight_come_back_in_order_and_a_panic_ends_the_wait() {
+        let cls = boxed([14, 14, 14], [2.0, 2.0, 2.0], [12.0, 12.0, 12.0]);
+        let s = State::new(extract(&cls));
+        let mut heap = Queue::new(all_edges(&s));
+        let (batch, _) = Gatherer::new(s.pos.len()).gather(&s, &mut heap);
+        let keys: Vec<(u32, u32)> = batch.iter().map(|r| (r.a, r.b)).collect();
+        assert!(keys.len() > 8, "a batch of {}", keys.len());
+        let regions = || {
+            keys.iter()
+                .map(|&(a, b)| s.region(a, b))
+                .collect::<Vec<_>>()
+        };
+        let named = |a: u32| {
+            Err(if a % 2 == 0 {
+                Reject::Band
+            } else {
+                Reject::Flip
+            })
+        };
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(2)
+            .build()
+            .unwrap();
+        // The first check is the slowest: the others finish first, on either thread.
+        let check = |r: &Region| -> Result<Plan, Reject> {
+            if r.a == keys[0].0 {
+                std::thread::sleep(std::time::Duration::from_millis(50));
+            }
+            named(r.a)
+        };
+        let (got, outcomes) =
+            pool.install(|| rayon::scope_fifo(|p| InFlight::start(p, regions(), &check).wait()));
+        assert_eq!(got, keys);
+        for (&(a, _), outcome) in keys.iter().zip(&outcomes) {
+            assert_eq!(
+                outcome.as_ref().err(),
+                named(a).err().as_ref(),
+                "edge from {a}"
+            );
+        }
+        // A check that panics: the wait ends (with a panic) within the time limit.
+        let (tx, rx) = std::sync::mpsc::channel();
+        let broken = keys[1].0;
+        let regions = regions();
+        std::thread::spawn(move || {
+            let check = |r: &Region| -> Result<Plan, Reject> {
+                assert!(r.a != broken, "a check that fails (on purpose)");
+                Err(Reject::Band)
+            };
+            let waited = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                pool.install(|| rayon::scope_fifo(|p| InFlight::start(p, regions, &check).wait()))
+            }));
+            tx.send(waited.is_err()).unwrap();
+        });
+        let ended = rx.recv_timeout(std::time::Duration::from_secs(30));
+        assert_eq!(
+            ended,
+            Ok(true),
+            "the wait on a panicked check did not end in a panic"
+        );
+    }
+
     /// A gather defers at most `DEFER_AT_MOST` candidates and loses none: gathered back to back
     /// with nothing committed and the deferred ones queued again, every edge of a box is
     /// batched exactly once, and the late gathers, whose queue lies around the batches in
