@@ -747,3 +747,56 @@ fn the_split_budget_is_per_pose_so_many_close_poses_are_all_certified() {
     assert_eq!(r["containment"]["certified"], 256);
     assert_eq!(r["containment"]["too_close"], 0);
 }
+
+/// A mesh that hugs a generator's face over its whole area, far closer than the finest radius
+/// splits reach (spacing / 256): the tetrahedron's base lies spacing / 1,000 above the
+/// cuboid's floor, the whole scene turned off the axes (so no box test tells them apart).
+/// Splitting cannot certify it (without the separating axes: every posed triangle on the base
+/// too close); a separating axis from each mesh triangle near a piece does, at any clearance. A
+/// floor the same distance through the base leaves points outside, and they are still found.
+#[test]
+fn a_mesh_hugging_a_face_is_certified_by_separating_axes() {
+    let dir = tempfile::tempdir().unwrap();
+    let v = vec![
+        [0.0f32, 0.0, 0.0],
+        [1.0, 0.0, 0.0],
+        [0.0, 1.0, 0.0],
+        [0.25, 0.25, 0.5],
+    ];
+    let t = vec![[0u32, 2, 1], [0, 1, 3], [1, 2, 3], [2, 0, 3]];
+    let g = write(dir.path(), "tetra.glb", glb(&v, &t));
+    let turn = glam::DQuat::from_axis_angle(DVec3::new(1.0, 1.0, 0.3).normalize(), 0.5);
+    let row = |x: f64| {
+        let at = turn * DVec3::new(x, 0.0, 0.0);
+        format!(
+            "{:.17},{:.17},{:.17},{:.17},{:.17},{:.17},{:.17}\n",
+            at.x, at.y, at.z, turn.w, turn.x, turn.y, turn.z
+        )
+    };
+    let csv = format!("tx,ty,tz,qw,qx,qy,qz\n{}{}", row(0.0), row(0.3));
+    let poses = write(dir.path(), "poses.csv", &csv);
+    let spacing = 0.004;
+    let sp = format!("{spacing}");
+    let turned = |floor: f64| {
+        let (v, t) = cuboid([-0.2, -0.2, floor], [1.6, 1.2, 0.7]);
+        let v: Vec<[f32; 3]> = (v.iter())
+            .map(|p| (turn * DVec3::from(p.map(f64::from))).as_vec3().to_array())
+            .collect();
+        glb(&v, &t)
+    };
+    let m = write(dir.path(), "hugging.glb", turned(-spacing / 1e3));
+    let (code, r) = verify_json(&g, &poses, &m, &["--spacing", &sp, "--motion", "discrete"]);
+    assert_eq!(code, 0, "{}", failures(&r));
+    assert_eq!(r["containment"]["certified"], 8);
+    assert_eq!(r["containment"]["too_close"], 0);
+    assert!(r["containment"]["separated_samples"].as_u64().unwrap() > 0);
+
+    let m = write(dir.path(), "cutting.glb", turned(spacing / 1e3));
+    let (code, r) = verify_json(&g, &poses, &m, &["--spacing", &sp, "--motion", "discrete"]);
+    assert_ne!(code, 0, "a floor through the base passed");
+    assert!(
+        failures(&r).contains("outside the mesh"),
+        "{}",
+        failures(&r)
+    );
+}

@@ -44,6 +44,9 @@ pub fn finest(floor: f64) -> f64 {
     floor * 0.5f64.powi(EXTRA_LEVELS)
 }
 
+/// Mesh triangles near a piece that [`Target::apart`] tests before leaving it to splits.
+const APART_AT_MOST: usize = 64;
+
 /// Relative widening of every clearance test, against f64 rounding in the distances.
 const REL_MARGIN: f64 = 1e-9;
 
@@ -61,6 +64,18 @@ impl Target<'_> {
         !self
             .bvh
             .any_within(p, r * (1.0 + REL_MARGIN) + self.abs_margin)
+    }
+
+    /// Every point within `r` of triangle `t` is off the mesh surface, proven by a separating
+    /// axis against each mesh triangle near it (at most [`APART_AT_MOST`]; else no).
+    fn apart(&self, t: &[DVec3; 3], r: f64) -> bool {
+        let reach = r * (1.0 + REL_MARGIN) + self.abs_margin;
+        let lo = t[0].min(t[1]).min(t[2]) - DVec3::splat(reach);
+        let hi = t[0].max(t[1]).max(t[2]) + DVec3::splat(reach);
+        let mut near = Vec::new();
+        self.bvh.for_each_overlap(lo, hi, |m| near.push(m));
+        near.len() <= APART_AT_MOST
+            && (near.iter()).all(|&m| geom::apart(t, &self.bvh.tris[m as usize], reach))
     }
 }
 
@@ -97,6 +112,9 @@ pub struct Containment {
     pub outside_samples: u64,
     /// Finest-level pieces neither proven inside nor outside.
     pub too_close_samples: u64,
+    /// Pieces at the finest level certified by a separating axis from each mesh triangle near
+    /// them instead of by a clear ball (a mesh that hugs a generator's face).
+    pub separated_samples: u64,
     /// Ball tests made (each an exact distance query on the mesh BVH).
     pub ball_tests: u64,
     /// Winding numbers evaluated.
@@ -116,6 +134,7 @@ impl Containment {
         self.too_close += o.too_close;
         self.outside_samples += o.outside_samples;
         self.too_close_samples += o.too_close_samples;
+        self.separated_samples += o.separated_samples;
         self.ball_tests += o.ball_tests;
         self.winding_evaluations += o.winding_evaluations;
         self.stopped_early |= o.stopped_early;
@@ -349,6 +368,13 @@ fn triangle(ctx: &Ctx, t: u32, cluster: u32) -> Containment {
             let on_surface = p.distance <= ctx.target.abs_margin;
             out.winding_evaluations += !on_surface as u64;
             let inside = !on_surface && ctx.target.winding.at(q) >= 0.5;
+            // No mesh triangle meets the piece's points (at every instant its pose stands for,
+            // all within `spread`): they form one connected set off the surface, where the
+            // winding number is the centre's. Certified at any clearance, without splitting.
+            if inside && ctx.target.apart(&world, spread) {
+                out.separated_samples += 1;
+                continue;
+            }
             let finer = own > finest(ctx.floor) && p.distance >= finest(ctx.floor);
             // A piece at the floor is under one pose (a leaf cluster): its budget.
             let budget = &mut extra_splits[range.start];

@@ -164,6 +164,34 @@ pub fn triangles_cross(t: &[DVec3; 3], u: &[DVec3; 3]) -> bool {
         || (0..3).any(|i| segment_crosses_triangle(u[i], u[(i + 1) % 3], t[0], t[1], t[2]))
 }
 
+/// Whether some axis separates triangles `t` and `u` by more than `gap`: either normal or the
+/// cross product of an edge of each (the axes that separate two triangles in general position).
+/// A yes proves every point within `gap` of t off u; a no proves nothing (coplanar pairs, for
+/// one, are never separated here). The projections are computed about t's centroid and
+/// widened by a relative 1e-9 of the coordinates' size there, far above their rounding.
+pub fn apart(t: &[DVec3; 3], u: &[DVec3; 3], gap: f64) -> bool {
+    let o = (t[0] + t[1] + t[2]) / 3.0;
+    let (t, u) = (t.map(|v| v - o), u.map(|v| v - o));
+    let size = (t.iter().chain(&u)).fold(0.0f64, |m, v| m.max(v.abs().max_element()));
+    let edges = |x: &[DVec3; 3]| [x[1] - x[0], x[2] - x[1], x[0] - x[2]];
+    let (te, ue) = (edges(&t), edges(&u));
+    let span = |x: &[DVec3; 3], a: DVec3| {
+        let d = x.map(|v| a.dot(v));
+        (d[0].min(d[1]).min(d[2]), d[0].max(d[1]).max(d[2]))
+    };
+    let separates = |a: DVec3| {
+        let len = a.length();
+        let ((tlo, thi), (ulo, uhi)) = (span(&t, a), span(&u, a));
+        let slack = len * (gap + 1e-9 * size);
+        len > 0.0 && (ulo - thi > slack || tlo - uhi > slack)
+    };
+    separates(te[0].cross(te[1]))
+        || separates(ue[0].cross(ue[1]))
+        || te
+            .iter()
+            .any(|&e| ue.iter().any(|&f| separates(e.cross(f))))
+}
+
 /// Largest and smallest singular values of the 3x3 matrix with columns `m`, as a sound upper
 /// bound of σ_max and lower bound of σ_min (eigenvalues of MᵀM by the trigonometric formula,
 /// widened by a relative 1e-9 against rounding; σ_max also capped by the Frobenius norm).
@@ -258,6 +286,55 @@ mod tests {
             // The samples are within 2/60 of an edge length of every point.
             assert!(d <= best + 1e-12, "{d} > {best}");
             assert!(best - d <= 0.08, "{d} vs {best}");
+        }
+    }
+
+    /// A separating axis is never claimed where the triangles come within the gap (distance
+    /// by dense samples along each one's edges against the other, exact point-triangle
+    /// distances, 0 where they cross), and stacked copies are told apart up to their distance.
+    #[test]
+    fn triangles_apart_are_farther_than_the_gap() {
+        let mut rng = Rng::with_seed(19);
+        let tri = |rng: &mut Rng, s: f64, at: DVec3| [0, 1, 2].map(|_| at + cube_point(rng, s));
+        let edge_distance = |t: &[DVec3; 3], u: &[DVec3; 3]| {
+            let n = 2000;
+            (0..3)
+                .flat_map(|k| (0..=n).map(move |i| (k, i as f64 / n as f64)))
+                .map(|(k, s)| t[k] + s * (t[(k + 1) % 3] - t[k]))
+                .map(|x| dist_triangle(x, u[0], u[1], u[2]))
+                .fold(f64::INFINITY, f64::min)
+        };
+        let (mut apart_seen, mut pairs) = (0, 0);
+        for k in 0..600 {
+            let t = tri(&mut rng, 1.0, DVec3::ZERO);
+            let at = cube_point(&mut rng, 1.2);
+            let u = tri(&mut rng, 0.6, at);
+            let gap = [0.0, 0.05, 0.2][k % 3];
+            let d = if triangles_cross(&t, &u) {
+                0.0
+            } else {
+                edge_distance(&t, &u).min(edge_distance(&u, &t))
+            };
+            pairs += 1;
+            if apart(&t, &u, gap) {
+                apart_seen += 1;
+                assert!(d > gap, "pair {k}: apart by {gap} at distance {d}");
+            }
+        }
+        assert!(
+            apart_seen > pairs / 4,
+            "{apart_seen} of {pairs} apart: no power"
+        );
+        for _ in 0..200 {
+            let t = tri(&mut rng, 1.0, DVec3::ZERO);
+            let d = 1e-6 + rng.f64();
+            let n = (t[1] - t[0]).cross(t[2] - t[0]).normalize();
+            let u = t.map(|v| v + d * n);
+            assert!(apart(&t, &u, 0.99 * d) && apart(&u, &t, 0.99 * d), "at {d}");
+            assert!(
+                !apart(&t, &u, 1.01 * d),
+                "apart by more than their distance {d}"
+            );
         }
     }
 

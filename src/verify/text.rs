@@ -91,7 +91,7 @@ impl Report {
         };
         let r = &c.result;
         s += &format!(
-            "containment (generalized winding number >= 1/2 with clearance >= covering radius; covering radius {}, down to {} near the surface): {} of {} posed triangles certified inside, {} with points outside, {} too close to certify ({} ball tests, {} winding numbers, {} outside samples, {} uncertain samples)\n",
+            "containment (generalized winding number >= 1/2 with clearance >= covering radius; covering radius {}, down to {} near the surface): {} of {} posed triangles certified inside, {} with points outside, {} too close to certify ({} ball tests, {} winding numbers, {} outside samples, {} uncertain samples, {} pieces certified by a separating axis)\n",
             fmt_len(c.spacing),
             fmt_len(c.finest),
             r.certified,
@@ -101,7 +101,8 @@ impl Report {
             r.ball_tests,
             r.winding_evaluations,
             r.outside_samples,
-            r.too_close_samples
+            r.too_close_samples,
+            r.separated_samples
         );
         if let Some(w) = &r.worst_outside {
             s += &format!(
