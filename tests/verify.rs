@@ -282,10 +282,11 @@ fn run_output_passes_and_broken_copies_fail_with_the_right_message() {
 }
 
 /// A tetrahedron whose apex comes within `clearance` of the top of a box around it, far from
-/// the box everywhere else: only the pieces at the apex come closer than the spacing, and they
-/// are split on below it. Certified when the clearance is an eighth of the spacing (as a swept
-/// volume at n = 1000 keeps from verify's default spacing where the generator comes nearest);
-/// too close below the finest radius, spacing / 256.
+/// the box everywhere else: only the pieces at the apex come closer than the spacing. Certified
+/// when the clearance is an eighth of the spacing (as a swept volume at n = 1000 keeps from
+/// verify's default spacing where the generator comes nearest) and when it is far below the
+/// finest radius, spacing / 256 (the top face separates the pieces at the apex); too close when
+/// the apex touches the top, with nothing outside.
 #[test]
 fn a_clearance_far_below_the_spacing_at_one_point_is_certified() {
     let dir = tempfile::tempdir().unwrap();
@@ -300,7 +301,11 @@ fn a_clearance_far_below_the_spacing_at_one_point_is_certified() {
     );
     let spacing = 0.004;
     let sp = format!("{spacing}");
-    for (clearance, certified) in [(spacing / 8.0, true), (spacing / 1000.0, false)] {
+    for (clearance, certified) in [
+        (spacing / 8.0, true),
+        (spacing / 1000.0, true),
+        (0.0, false),
+    ] {
         let m = dir.path().join("around.glb");
         let top = apex[2] as f64 + clearance;
         let (v, t) = cuboid([-0.2, -0.2, -0.2], [1.2, 1.2, top]);
@@ -412,9 +417,11 @@ fn analytic_box_hull_clearance_and_deviation() {
     );
     assert!(r["deviation"]["pockets"]["visible"].as_u64().unwrap() > 0);
 
-    // The hull enlarged by a clearance an eighth of the spacing over whole faces: certifying
-    // it needs pieces that small everywhere, which only a smaller --spacing asks for; the
-    // splits below the spacing run out and it fails as too close, with nothing outside.
+    // The hull enlarged by a clearance an eighth of the spacing over whole faces. With the
+    // motion between rows each pose stands for instants farther apart than the clearance, so
+    // no axis parts a piece from the hull by its spread; splits could certify it only with
+    // pieces that small everywhere, they run out, and it fails as too close, with nothing
+    // outside. The listed poses alone are certified: the faces part every piece from the hull.
     let m = dir.path().join("hull+c.glb");
     let c = spacing / 8.0;
     let (v, t) = cuboid([-c, -c, -c], [1.5 + c, 0.4 + c, 0.3 + c]);
@@ -425,6 +432,10 @@ fn analytic_box_hull_clearance_and_deviation() {
         failures(&r).contains("too close to the mesh surface to certify down to covering radius")
     );
     assert_eq!(r["containment"]["outside"], 0);
+    let (code, r) = verify_json(&g, &csv, &m, &["--spacing", &sp, "--motion", "discrete"]);
+    assert_eq!(code, 0, "{}", failures(&r));
+    assert_eq!(r["containment"]["too_close"], 0);
+    assert!(r["containment"]["separated_samples"].as_u64().unwrap() > 0);
 
     // The exact hull: the generator's faces lie on it, so no clearance: not certified, and
     // nothing is outside either.

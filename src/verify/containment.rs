@@ -9,14 +9,14 @@
 //! constant: one winding number at the centre decides every point of every posed triangle in it.
 //! Otherwise the item splits (poses, BVH node, or the piece into four) down to pieces whose
 //! covering radius is at most `floor` under a single pose; such a piece is "outside" when its
-//! centre has w < 1/2. A piece whose centre is inside, at distance d from the mesh, splits on
+//! centre has w < 1/2. A piece whose centre is inside is certified when a separating axis
+//! parts it from each mesh triangle near it by more than its pose's spread (`geom::apart`):
+//! then none of its points at any instant meets the surface, so all share the centre's w,
+//! whatever the clearance (a mesh that hugs a generator's face over its area, as a flat part
+//! swept along a straight path leaves). Otherwise, at distance d from the mesh, it splits on
 //! while d is at least the [`finest`] radius (the pieces near its centre can still be
 //! certified once their radius is below d), at most `EXTRA_SPLITS` (1,024) times per posed
-//! triangle; else it is "too close to certify". So a mesh that keeps a clearance far below
-//! `floor` at a few places (a swept volume at n = 1000 keeps about 0.07 voxels, a tenth of the
-//! default floor, where the generator comes nearest) is certified, while one that hugs the
-//! generator over whole faces fails after a bounded extra effort: certifying it needs a finer `floor`
-//! everywhere, which is the user's call (`--spacing`).
+//! triangle; else it is "too close to certify".
 
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 
