@@ -4,9 +4,8 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 
 use super::queue::{Candidate, Queue};
-use super::region::Region;
+use super::region::{Plan, Region, Reject};
 use super::state::State;
-use super::state::{Plan, Reject};
 use super::BATCH;
 
 /// A gather stops after deferring this many candidates. Late in a seam pass most of the queue

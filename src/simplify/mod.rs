@@ -54,8 +54,7 @@ mod state;
 use batch::{Gatherer, InFlight};
 use pieces::Pieces;
 use queue::Queue;
-use region::Region;
-use state::{Plan, Reject, Scratch, State};
+use state::{Plan, Region, Reject, Scratch, State};
 
 /// Candidates checked together (in parallel); results do not depend on the thread count.
 const BATCH: usize = 64;
