@@ -310,11 +310,14 @@ fn coarsen_in(
         .iter()
         .map(|m| m.iter().map(|&v| mesh.positions[v as usize]).sum::<DVec3>() / m.len() as f64)
         .collect();
-    // Ids while checking: fine vertices 0..n, cluster c as n + c.
-    let image = |active: &[bool], v: u32| match cluster[v as usize] {
-        c if c != u32::MAX && active[c as usize] => n as u32 + c,
-        _ => v,
-    };
+    // Ids while checking: fine vertices 0..n, cluster c as n + c; each fine vertex's image
+    // (its active cluster's id, else itself), kept as clusters are left fine.
+    let mut image: Vec<u32> = (0..n as u32)
+        .map(|v| match cluster[v as usize] {
+            c if c != u32::MAX && active[c as usize] => n as u32 + c,
+            _ => v,
+        })
+        .collect();
     let place = |x: u32| {
         if (x as usize) < n {
             mesh.positions[x as usize]
@@ -322,8 +325,8 @@ fn coarsen_in(
             point[x as usize - n]
         }
     };
-    let mapped = |active: &[bool], t: &[u32; 3]| -> Option<[u32; 3]> {
-        let m = t.map(|v| image(active, v));
+    let mapped = |image: &[u32], t: &[u32; 3]| -> Option<[u32; 3]> {
+        let m = t.map(|v| image[v as usize]);
         (m[0] != m[1] && m[1] != m[2] && m[2] != m[0]).then_some(m)
     };
     let mut passed: HashSet<[u32; 3], BuildHasherDefault<KeyHasher>> = HashSet::default();
@@ -335,8 +338,10 @@ fn coarsen_in(
     let mut dirty: Vec<u32> = (0..members.len() as u32)
         .filter(|&c| active[c as usize])
         .collect();
+    // The fine vertices next to what changed, each once (`listed`: the round that listed it).
     let mut fine_near: Vec<u32> = Vec::new();
-    let mut link: Vec<(u32, u32)> = Vec::new();
+    let (mut listed, mut round) = (vec![0u32; n], 1u32);
+    let (mut link, mut near): (Vec<(u32, u32)>, Vec<u32>) = (Vec::new(), Vec::new());
     loop {
         let mut bad: Vec<u32> = Vec::new();
         let blame = |bad: &mut Vec<u32>, xs: &[u32]| {
@@ -355,8 +360,13 @@ fn coarsen_in(
             for &v in &members[c as usize] {
                 for &t in star(v) {
                     let tri = &mesh.triangles[t as usize];
-                    fine_near.extend(tri.iter().filter(|&&x| image(&active, x) == x));
-                    let Some(m) = mapped(&active, tri) else {
+                    for &x in tri {
+                        if image[x as usize] == x && listed[x as usize] != round {
+                            listed[x as usize] = round;
+                            fine_near.push(x);
+                        }
+                    }
+                    let Some(m) = mapped(&image, tri) else {
                         continue;
                     };
                     let k = m.iter().position(|&x| x == me).expect("c is a corner");
@@ -386,15 +396,13 @@ fn coarsen_in(
                 bad.push(c);
             }
         }
-        fine_near.sort_unstable();
-        fine_near.dedup();
         for &v in &fine_near {
             link.clear();
-            let mut near: Vec<u32> = Vec::new();
+            near.clear();
             for &t in star(v) {
                 let tri = &mesh.triangles[t as usize];
-                let Some(m) = mapped(&active, tri) else {
-                    near.extend(tri.map(|x| image(&active, x)));
+                let Some(m) = mapped(&image, tri) else {
+                    near.extend(tri.map(|x| image[x as usize]));
                     continue;
                 };
                 let k = m.iter().position(|&x| x == v).expect("v is a corner");
@@ -406,6 +414,7 @@ fn coarsen_in(
             }
         }
         fine_near.clear();
+        round += 1;
         bad.sort_unstable();
         bad.dedup();
         bad.retain(|&c| active[c as usize]);
@@ -414,6 +423,9 @@ fn coarsen_in(
         }
         for &c in &bad {
             active[c as usize] = false;
+            for &v in &members[c as usize] {
+                image[v as usize] = v;
+            }
         }
         // Next: the active clusters and the fine vertices next to those just left fine.
         dirty.clear();
@@ -421,9 +433,13 @@ fn coarsen_in(
             for &v in &members[c as usize] {
                 for &t in star(v) {
                     for &x in &mesh.triangles[t as usize] {
-                        match image(&active, x) {
+                        match image[x as usize] {
                             y if y as usize >= n => dirty.push(y - n as u32),
-                            y => fine_near.push(y),
+                            y if listed[y as usize] != round => {
+                                listed[y as usize] = round;
+                                fine_near.push(y);
+                            }
+                            _ => {}
                         }
                     }
                 }
@@ -443,8 +459,8 @@ fn coarsen_in(
     let mut new: Vec<[DVec3; 3]> = Vec::new();
     let mut triangles: Vec<[u32; 3]> = Vec::with_capacity(mesh.triangles.len());
     for t in &mesh.triangles {
-        let m = mapped(&active, t);
-        if t.iter().any(|&v| image(&active, v) != v) {
+        let m = mapped(&image, t);
+        if t.iter().any(|&v| image[v as usize] != v) {
             old.push(t.map(|v| mesh.positions[v as usize]));
             if let Some(m) = m {
                 new.push(m.map(place));
@@ -491,7 +507,7 @@ fn coarsen_in(
         cluster: Vec::new(),
     };
     for v in 0..n as u32 {
-        let x = image(&active, v);
+        let x = image[v as usize];
         if x == v {
             id[v as usize] = out.mesh.positions.len() as u32;
             out.mesh.positions.push(mesh.positions[v as usize]);
