@@ -15,8 +15,9 @@
 //! - sweep: the triangles moved (O: faces of outside voxels or triangles in T) and the new ones
 //!   (N, in T) both miss the swept volume, so the winding number of O - N is constant on each
 //!   of its pieces; the step is taken only when it is zero at each
-//!   ([`super::pieces::Pieces::swallowed`]), so no point of it is lost. Without the pieces, or
-//!   with too many in the step's box ([`SWEEP_BUDGET`]), the level declines;
+//!   ([`super::pieces::Pieces::swallowed_by_map`], summed over prisms), so no point of it is
+//!   lost. Without the pieces, or with too many in the step's box ([`SWEEP_BUDGET`]), the level
+//!   declines;
 //! - topology: each cluster spans a contractible part of the surface (connected, Euler
 //!   characteristic 1); after mapping, every vertex a moved triangle touches has one fan (so
 //!   every edge at a cluster has one triangle each way); and the patch's Euler characteristic is
@@ -38,6 +39,7 @@ use std::hash::BuildHasherDefault;
 use glam::DVec3;
 
 use super::band::KeyHasher;
+use super::pieces::Mapped;
 use super::quadric::Quadric;
 use super::region::Scratch;
 use super::SimplifyOptions;
@@ -455,28 +457,36 @@ fn coarsen_in(
     // Euler characteristic: V - E + F with E = (3F + open edges) / 2 and the open edges kept,
     // so it is unchanged when the vertices removed are half the triangles removed.
     let removed: usize = taken.iter().map(|&c| members[c].len() - 1).sum();
-    let mut old: Vec<[DVec3; 3]> = Vec::new();
-    let mut new: Vec<[DVec3; 3]> = Vec::new();
+    // The moved triangles (O), each with its image's places (N: the images still triangles).
+    let mut moved: Vec<Mapped> = Vec::new();
+    let mut images = 0usize;
     let mut triangles: Vec<[u32; 3]> = Vec::with_capacity(mesh.triangles.len());
     for t in &mesh.triangles {
         let m = mapped(&image, t);
         if t.iter().any(|&v| image[v as usize] != v) {
-            old.push(t.map(|v| mesh.positions[v as usize]));
-            if let Some(m) = m {
-                new.push(m.map(place));
-            }
+            moved.push(Mapped {
+                ids: *t,
+                from: t.map(|v| mesh.positions[v as usize]),
+                to: t.map(|v| place(image[v as usize])),
+            });
+            images += usize::from(m.is_some());
         }
         triangles.extend(m);
     }
     if 2 * removed != mesh.triangles.len() - triangles.len() {
         return Err(Declined::Euler);
     }
-    // Each piece with both points in the step's box costs a winding number over O and N.
-    let enclosed = pieces.enclosed_by(&old, &new);
-    if enclosed.saturating_mul(old.len() + new.len()) > SWEEP_BUDGET {
+    // Each piece with both points in the step's box costs a winding number over O and N. (A
+    // vanished triangle's image lies in the box of O: a cluster's point is its members' mean.)
+    let step_box = moved.iter().map(Mapped::bounds).fold(
+        (DVec3::INFINITY, DVec3::NEG_INFINITY),
+        |(lo, hi), (l, h)| (lo.min(l), hi.max(h)),
+    );
+    let enclosed = pieces.enclosed_by(step_box);
+    if enclosed.saturating_mul(moved.len() + images) > SWEEP_BUDGET {
         return Err(Declined::SweepCost);
     }
-    if pieces.swallowed(&old, &new) {
+    if pieces.swallowed_by_map(&moved) {
         return Err(Declined::Sweep);
     }
     // Each vertex's quadric (the planes of its fine triangles), summed per cluster.

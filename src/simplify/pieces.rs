@@ -92,11 +92,9 @@ impl Pieces {
         self.points.is_empty()
     }
 
-    /// How many pieces have both points in the box of `old` and `new`: those whose winding
-    /// number [`Self::swallowed`] may compute.
-    pub fn enclosed_by(&self, old: &[[DVec3; 3]], new: &[[DVec3; 3]]) -> usize {
-        let ((olo, ohi), (nlo, nhi)) = (bounds(old.as_flattened()), bounds(new.as_flattened()));
-        let (lo, hi) = (olo.min(nlo), ohi.max(nhi));
+    /// How many pieces have both points in the box [lo, hi]: those whose winding number
+    /// [`Self::swallowed`] or [`Self::swallowed_by_map`] may compute for a step of that box.
+    pub fn enclosed_by(&self, (lo, hi): (DVec3, DVec3)) -> usize {
         let inside = |p: DVec3| p.cmpge(lo).all() && p.cmple(hi).all();
         self.points
             .iter()
@@ -109,9 +107,14 @@ impl Pieces {
     /// O - N winds around a piece's first point, or when f64 cannot tell.
     pub fn swallowed(&self, old: &[[DVec3; 3]], new: &[[DVec3; 3]]) -> bool {
         let ((olo, ohi), (nlo, nhi)) = (bounds(old.as_flattened()), bounds(new.as_flattened()));
-        let (lo, hi) = (olo.min(nlo), ohi.max(nhi));
+        self.any_within(olo.min(nlo), ohi.max(nhi), |p| winds(old, new, p))
+    }
+
+    /// Whether `f` says yes at the first point of some piece with both points in the box
+    /// [lo, hi] (asked in the pieces' cell order, each at most once).
+    fn any_within(&self, lo: DVec3, hi: DVec3, mut f: impl FnMut(DVec3) -> bool) -> bool {
         let inside = |p: DVec3| p.cmpge(lo).all() && p.cmple(hi).all();
-        let swallows = |&[p, q]: &[DVec3; 2]| inside(p) && inside(q) && winds(old, new, p);
+        let mut swallows = |&[p, q]: &[DVec3; 2]| inside(p) && inside(q) && f(p);
         let (clo, chi) = (cell_of(lo), cell_of(hi));
         let cells = (0..3).fold(1.0, |n, a| n * (chi[a] - clo[a] + 1) as f64);
         if cells > self.points.len() as f64 {
@@ -131,6 +134,93 @@ impl Pieces {
             }
         }
         false
+    }
+
+    /// [`Self::swallowed`] for a step that maps vertices onto images (a level of clusters):
+    /// O = the triangles of `moved` where they were, N = their images (those still
+    /// triangles), computed by prisms so that a point costs only the triangles near it.
+    ///
+    /// The chain O - N is the sum over O's triangles t of the closed prism P_t = t - φ(t) -
+    /// Σ_{edges u→v of t} Q(u→v), Q(u→v) the side swept by the edge, (u, v, φv, φu), split by
+    /// the diagonal from its end of lower vertex id, so that Q(v→u) = -Q(u→v) exactly: the
+    /// sides of the two triangles at an edge cancel, and a side whose ends are both fixed is
+    /// degenerate. So the winding number of O - N at p is the sum of the prisms', and that of a
+    /// closed surface is zero outside its box: only the prisms whose box holds p are summed.
+    /// The pieces asked are [`Self::swallowed`]'s, so the answers are its answers (each an
+    /// integer computed in f64 with [`WINDING_SLACK`]).
+    pub fn swallowed_by_map(&self, moved: &[Mapped]) -> bool {
+        if moved.is_empty() {
+            return false;
+        }
+        let (mut lo, mut hi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+        for m in moved {
+            let (l, h) = m.bounds();
+            (lo, hi) = (lo.min(l), hi.max(h));
+        }
+        // The pieces' first points to ask about.
+        let mut asked: Vec<DVec3> = Vec::new();
+        self.any_within(lo, hi, |p| {
+            asked.push(p);
+            false
+        });
+        if asked.is_empty() {
+            return false;
+        }
+        // The prisms whose box holds each point, summed in `moved`'s order.
+        let mut sums = vec![0.0; asked.len()];
+        for m in moved {
+            let (l, h) = m.bounds();
+            for (p, sum) in asked.iter().zip(&mut sums) {
+                if p.cmpge(l).all() && p.cmple(h).all() {
+                    *sum += m.prism_winding(*p);
+                }
+            }
+        }
+        sums.iter().any(|&w| off_zero(w))
+    }
+}
+
+/// A triangle of a step that maps vertices onto images (a level of clusters): its corners'
+/// vertex ids, and their places before and after (a corner that stays has one place).
+#[derive(Clone, Copy, Debug)]
+pub struct Mapped {
+    pub ids: [u32; 3],
+    pub from: [DVec3; 3],
+    pub to: [DVec3; 3],
+}
+
+impl Mapped {
+    /// The box of the triangle's places before and after: its prism's.
+    pub fn bounds(&self) -> (DVec3, DVec3) {
+        let (a, b) = bounds(&self.from);
+        let (c, d) = bounds(&self.to);
+        (a.min(c), b.max(d))
+    }
+
+    /// The winding number at `p` of the closed prism of [`Pieces::swallowed_by_map`]: the
+    /// triangle, its image reversed and its edges' sides reversed (degenerate triangles, zero
+    /// chains, left out).
+    fn prism_winding(&self, p: DVec3) -> f64 {
+        let share = |t: [DVec3; 3]| {
+            if t[0] == t[1] || t[1] == t[2] || t[2] == t[0] {
+                0.0
+            } else {
+                winding_share(p, t[0], t[1], t[2])
+            }
+        };
+        let (f, t) = (self.from, self.to);
+        let mut w = share(f) - share(t);
+        for u in 0..3 {
+            let v = (u + 1) % 3;
+            // Q(u→v) = [u, v, φv] + [u, φv, φu] from u when its id is the lower, else
+            // -Q(v→u) = -([v, u, φu] + [v, φu, φv]): the same two triangles either way round.
+            w -= if self.ids[u] < self.ids[v] {
+                share([f[u], f[v], t[v]]) + share([f[u], t[v], t[u]])
+            } else {
+                -(share([f[v], f[u], t[u]]) + share([f[v], t[u], t[v]]))
+            };
+        }
+        w
     }
 }
 
@@ -152,7 +242,11 @@ pub(super) fn winding(tris: &[[DVec3; 3]], p: DVec3) -> f64 {
 
 /// Whether the closed surface `old` - `new` winds around `p` (or f64 cannot tell).
 fn winds(old: &[[DVec3; 3]], new: &[[DVec3; 3]], p: DVec3) -> bool {
-    let w = winding(old, p) - winding(new, p);
+    off_zero(winding(old, p) - winding(new, p))
+}
+
+/// Whether a winding number computed in f64 may be anything but zero.
+fn off_zero(w: f64) -> bool {
     (w - w.round()).abs() > WINDING_SLACK || w.round() != 0.0
 }
 
@@ -212,6 +306,7 @@ fn component_ends(tris: &[[f32; 9]]) -> Vec<[DVec3; 2]> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::verify::geom::dist_triangle;
 
     fn v(x: f64, y: f64, z: f64) -> DVec3 {
         DVec3::new(x, y, z)
@@ -277,6 +372,129 @@ mod tests {
         assert!(!Pieces::from_points(vec![[v(35.0, 35.0, 10.0); 2]]).swallowed(&wide, &[]));
         assert!(Pieces::from_points(vec![[v(10.0, 10.0, 10.0); 2]]).swallowed(&wide, &[]));
         assert!(Pieces::from_points(with).swallowed(&o, &[]));
+    }
+
+    /// A height-field patch of 7 × 7 vertices whose interior vertices are mapped by a random
+    /// clustering (groups of 2 × 2 onto one point off the surface, or left), boundary fixed: the
+    /// moved triangles, O and N.
+    fn mapped_patch(seed: u64) -> (Vec<Mapped>, Vec<[DVec3; 3]>, Vec<[DVec3; 3]>) {
+        let mut state = seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) | 1;
+        let mut rnd = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let k = 7usize;
+        let id = |i: usize, j: usize| (i * k + j) as u32;
+        let mut from = vec![DVec3::ZERO; k * k];
+        for i in 0..k {
+            for j in 0..k {
+                from[id(i, j) as usize] = v(i as f64, j as f64, 0.5 * rnd());
+            }
+        }
+        // Each group of 2 × 2 interior vertices onto one point, or (a third of them) left.
+        let mut to = from.clone();
+        let mut target = std::collections::HashMap::new();
+        for i in 1..k - 1 {
+            for j in 1..k - 1 {
+                let group = (i / 2, j / 2);
+                let point = *target.entry(group).or_insert_with(|| {
+                    (rnd() < 0.67).then(|| {
+                        v(
+                            2.0 * group.0 as f64 + rnd(),
+                            2.0 * group.1 as f64 + rnd(),
+                            2.0 * rnd() - 0.7,
+                        )
+                    })
+                });
+                if let Some(p) = point {
+                    to[id(i, j) as usize] = p;
+                }
+            }
+        }
+        let (mut moved, mut old, mut new) = (Vec::new(), Vec::new(), Vec::new());
+        for i in 0..k - 1 {
+            for j in 0..k - 1 {
+                let (a, b, c, d) = (id(i, j), id(i + 1, j), id(i + 1, j + 1), id(i, j + 1));
+                for ids in [[a, b, c], [a, c, d]] {
+                    let m = Mapped {
+                        ids,
+                        from: ids.map(|x| from[x as usize]),
+                        to: ids.map(|x| to[x as usize]),
+                    };
+                    if m.from != m.to {
+                        old.push(m.from);
+                        if m.to[0] != m.to[1] && m.to[1] != m.to[2] && m.to[2] != m.to[0] {
+                            new.push(m.to);
+                        }
+                        moved.push(m);
+                    }
+                }
+            }
+        }
+        (moved, old, new)
+    }
+
+    #[test]
+    fn prisms_wind_as_the_old_and_new_surfaces_do() {
+        let mut compared = 0;
+        let mut enclosed = 0;
+        for seed in 0..40u64 {
+            let (moved, old, new) = mapped_patch(seed);
+            let mut state = seed + 1000;
+            let mut rnd = move || {
+                state = state
+                    .wrapping_mul(6_364_136_223_846_793_005)
+                    .wrapping_add(1);
+                (state >> 11) as f64 / (1u64 << 53) as f64
+            };
+            let near = |p: DVec3, tris: &[[DVec3; 3]]| {
+                tris.iter()
+                    .any(|t| dist_triangle(p, t[0], t[1], t[2]) < 1e-3)
+            };
+            for _ in 0..400 {
+                let p = v(6.4 * rnd() - 0.2, 6.4 * rnd() - 0.2, 2.0 * rnd() - 0.9);
+                if near(p, &old) || near(p, &new) {
+                    continue;
+                }
+                // Every prism, and the prisms whose box holds p only: both O - N's winding.
+                let want = winding(&old, p) - winding(&new, p);
+                let all: f64 = moved.iter().map(|m| m.prism_winding(p)).sum();
+                let boxed: f64 = moved
+                    .iter()
+                    .filter(|m| {
+                        let (l, h) = m.bounds();
+                        p.cmpge(l).all() && p.cmple(h).all()
+                    })
+                    .map(|m| m.prism_winding(p))
+                    .sum();
+                assert!(
+                    (want - want.round()).abs() < 1e-6,
+                    "seed {seed}: {want} at {p}"
+                );
+                assert!(
+                    (all - want).abs() < 1e-6,
+                    "seed {seed}: prisms {all}, O - N {want}"
+                );
+                assert!(
+                    (boxed - want).abs() < 1e-6,
+                    "seed {seed}: boxed {boxed}, O - N {want}"
+                );
+                let pieces = Pieces::from_points(vec![[p, p]]);
+                assert_eq!(
+                    pieces.swallowed_by_map(&moved),
+                    pieces.swallowed(&old, &new)
+                );
+                compared += 1;
+                enclosed += usize::from(want.round() != 0.0);
+            }
+        }
+        // Both answers met often enough to mean something.
+        assert!(
+            compared > 10_000 && enclosed > 500,
+            "{compared} points, {enclosed} enclosed"
+        );
     }
 
     #[test]
