@@ -147,7 +147,7 @@ impl Pieces {
     /// degenerate. So the winding number of O - N at p is the sum of the prisms', and that of a
     /// closed surface is zero outside its box: only the prisms whose box holds p are summed.
     /// The pieces asked are [`Self::swallowed`]'s, so the answers are its answers (each an
-    /// integer computed in f64 with [`WINDING_SLACK`]).
+    /// integer computed in f64 with `WINDING_SLACK`).
     pub fn swallowed_by_map(&self, moved: &[Mapped]) -> bool {
         if moved.is_empty() {
             return false;
