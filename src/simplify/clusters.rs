@@ -478,11 +478,7 @@ fn coarsen_in(
     }
     // Each piece with both points in the step's box costs a winding number over O and N. (A
     // vanished triangle's image lies in the box of O: a cluster's point is its members' mean.)
-    let step_box = moved.iter().map(Mapped::bounds).fold(
-        (DVec3::INFINITY, DVec3::NEG_INFINITY),
-        |(lo, hi), (l, h)| (lo.min(l), hi.max(h)),
-    );
-    let enclosed = pieces.enclosed_by(step_box);
+    let enclosed = pieces.enclosed_by(Mapped::bounds_of(&moved));
     if enclosed.saturating_mul(moved.len() + images) > SWEEP_BUDGET {
         return Err(Declined::SweepCost);
     }

@@ -152,11 +152,7 @@ impl Pieces {
         if moved.is_empty() {
             return false;
         }
-        let (mut lo, mut hi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
-        for m in moved {
-            let (l, h) = m.bounds();
-            (lo, hi) = (lo.min(l), hi.max(h));
-        }
+        let (lo, hi) = Mapped::bounds_of(moved);
         // The pieces' first points to ask about.
         let mut asked: Vec<DVec3> = Vec::new();
         self.any_within(lo, hi, |p| {
@@ -195,6 +191,14 @@ impl Mapped {
         let (a, b) = bounds(&self.from);
         let (c, d) = bounds(&self.to);
         (a.min(c), b.max(d))
+    }
+
+    /// The box of a step's triangles' places before and after (empty for none).
+    pub fn bounds_of(moved: &[Mapped]) -> (DVec3, DVec3) {
+        moved.iter().map(Mapped::bounds).fold(
+            (DVec3::INFINITY, DVec3::NEG_INFINITY),
+            |(lo, hi), (l, h)| (lo.min(l), hi.max(h)),
+        )
     }
 
     /// The winding number at `p` of the closed prism of [`Pieces::swallowed_by_map`]: the
