@@ -108,30 +108,43 @@ pub fn split_dominant(
     }
 }
 
-/// About how many faces of the voxel boundary block `b` owns, from a sample of its voxel rows
-/// along x: in every `ESTIMATE_STRIDE`-th row along y and along z, the faces between its voxels
-/// and those between it and the rows below it along y and along z, scaled by the stride
-/// squared. For ordering the blocks' work, costliest first; about 1% of extracting them.
+/// About how many faces of the voxel boundary block `b` owns, from every fourth slab: the
+/// faces across x and y in the slabs k = const and those across z in the slabs j = const, with k
+/// and j multiples of `ESTIMATE_STRIDE`, scaled by it. Each kind of face is counted where its
+/// plane is crossed by the sampled slabs, so a flat wall is seen at that rate wherever it lies:
+/// rows on a lattice of 4 along both y and z (the rule before) saw a wall across y or z 16
+/// times over or not at all (the gear at n = 512: a block of 373,924 start triangles estimated
+/// at 97,104 faces, its neighbours within 35%). For ordering the blocks' work, costliest
+/// first, and splitting a block that holds most of it; a few per cent of extracting them.
 pub fn faces_estimate(set: &dyn VoxelSet, b: &Block) -> usize {
     const ESTIMATE_STRIDE: usize = 4;
     let (x0, x1) = (b.lo[0] as isize - 1, b.hi[0] as isize);
     let len = (x1 - x0) as usize;
-    let (mut row, mut below_y, mut below_z) =
-        (vec![false; len], vec![false; len], vec![false; len]);
+    let (mut row, mut before) = (vec![false; len], vec![false; len]);
     let differ = |a: &[bool], b: &[bool]| a.iter().zip(b).filter(|(a, b)| a != b).count();
+    let lo = b.lo.map(|x| x as isize);
+    let hi = b.hi.map(|x| x as isize);
     let mut faces = 0;
-    for k in (b.lo[2]..b.hi[2]).step_by(ESTIMATE_STRIDE) {
-        for j in (b.lo[1]..b.hi[1]).step_by(ESTIMATE_STRIDE) {
-            let (j, k) = (j as isize, k as isize);
+    // Slabs k = const: rows along y in turn, each against the one before it (element 0 is the
+    // voxel before the block: faces on plane x = lo are the block's, as are those on y = lo).
+    for k in (lo[2]..hi[2]).step_by(ESTIMATE_STRIDE) {
+        set.fill_box([x0, lo[1] - 1, k], [x1, lo[1], k + 1], &mut before);
+        for j in lo[1]..hi[1] {
             set.fill_box([x0, j, k], [x1, j + 1, k + 1], &mut row);
-            set.fill_box([x0, j - 1, k], [x1, j, k + 1], &mut below_y);
-            set.fill_box([x0, j, k - 1], [x1, j + 1, k], &mut below_z);
-            // Element 0 is the voxel before the block: faces on plane x = lo are the block's.
-            faces += differ(&row[..len - 1], &row[1..]);
-            faces += differ(&row[1..], &below_y[1..]) + differ(&row[1..], &below_z[1..]);
+            faces += differ(&row[..len - 1], &row[1..]) + differ(&row[1..], &before[1..]);
+            std::mem::swap(&mut row, &mut before);
         }
     }
-    faces * ESTIMATE_STRIDE * ESTIMATE_STRIDE
+    // Slabs j = const: rows along z in turn, for the faces across z.
+    for j in (lo[1]..hi[1]).step_by(ESTIMATE_STRIDE) {
+        set.fill_box([x0, j, lo[2] - 1], [x1, j + 1, lo[2]], &mut before);
+        for k in lo[2]..hi[2] {
+            set.fill_box([x0, j, k], [x1, j + 1, k + 1], &mut row);
+            faces += differ(&row[1..], &before[1..]);
+            std::mem::swap(&mut row, &mut before);
+        }
+    }
+    faces * ESTIMATE_STRIDE
 }
 
 /// One block's part of the voxel boundary: its faces as triangles, and which vertices lie on
@@ -437,6 +450,27 @@ mod tests {
         }
         let ratio = estimated as f64 / counted as f64;
         assert!((0.9..1.1).contains(&ratio), "{estimated} for {counted}");
+    }
+
+    /// Flat walls across y and z are counted wherever they lie: a box with its faces on planes
+    /// off every lattice of 2 or 4 is estimated within 15% in each block it crosses.
+    #[test]
+    fn the_faces_estimate_sees_flat_walls_anywhere() {
+        let dims = [64, 64, 64];
+        for (lo, hi) in [([3, 5, 6], [57, 59, 61]), ([9, 13, 7], [55, 43, 51])] {
+            let inside = |v: [usize; 3]| (0..3).all(|a| (lo[a]..hi[a]).contains(&v[a]));
+            let cls = crate::mesh::classify::test_support::from_voxels(dims, inside);
+            for b in blocks(dims.map(|x| x as usize), 32) {
+                let faces = extract_block(&cls, &b).mesh.triangles.len() / 2;
+                let guess = faces_estimate(&cls, &b);
+                if faces == 0 {
+                    assert_eq!(guess, 0, "{b:?}");
+                    continue;
+                }
+                let ratio = guess as f64 / faces as f64;
+                assert!((0.85..1.15).contains(&ratio), "{b:?}: {guess} for {faces}");
+            }
+        }
     }
 
     #[test]
