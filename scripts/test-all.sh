@@ -6,7 +6,23 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-say() { printf '\n==> %s\n' "$*"; }
+# Each section's wall time is printed when the next one starts, and all of them at the end
+# (CI's budget is 30 minutes: this says where it goes).
+section=""
+section_from=$SECONDS
+timings=()
+took() {
+    if [ -n "$section" ]; then
+        timings+=("$(printf '%5ds  %s' $((SECONDS - section_from)) "${section:0:90}")")
+        printf '    (%d s)\n' $((SECONDS - section_from))
+    fi
+}
+say() {
+    took
+    section="$*"
+    section_from=$SECONDS
+    printf '\n==> %s\n' "$*"
+}
 sudo_() { if [ "$(id -u)" = 0 ]; then "$@"; else sudo "$@"; fi; }
 
 apt_install() {
@@ -110,3 +126,7 @@ for p in python3-numpy libxi6 libxxf86vm1 libxfixes3 libxrender1 libgl1 libsm6 l
 done
 if ((${#blender_libs[@]})); then apt_install "${blender_libs[@]}"; fi
 blender_addon/tests/run-e2e-all.sh target/release/sweptvol
+took
+printf '\n==> every test passed; wall time by section:\n'
+printf '%s\n' "${timings[@]}"
+printf '%5ds  in all\n' "$SECONDS"
