@@ -458,12 +458,16 @@ fn coarsen_in(
     // so it is unchanged when the vertices removed are half the triangles removed.
     let removed: usize = taken.iter().map(|&c| members[c].len() - 1).sum();
     // The moved triangles (O), each with its image's places (N: the images still triangles).
-    let mut moved: Vec<Mapped> = Vec::new();
+    // Counted first: a block's level moves up to a few hundred thousand of them (150 bytes
+    // each), which growing by doubling copied over and over.
+    let is_moved = |t: &[u32; 3]| t.iter().any(|&v| image[v as usize] != v);
+    let mut moved: Vec<Mapped> =
+        Vec::with_capacity(mesh.triangles.iter().filter(|t| is_moved(t)).count());
     let mut images = 0usize;
     let mut triangles: Vec<[u32; 3]> = Vec::with_capacity(mesh.triangles.len());
     for t in &mesh.triangles {
         let m = mapped(&image, t);
-        if t.iter().any(|&v| image[v as usize] != v) {
+        if is_moved(t) {
             moved.push(Mapped {
                 ids: *t,
                 from: t.map(|v| mesh.positions[v as usize]),
@@ -504,13 +508,17 @@ fn coarsen_in(
     };
     // New ids in vertex order, a cluster at its first member's place in it.
     let mut id = vec![u32::MAX; n + members.len()];
+    let kept = n - removed;
     let mut out = Coarse {
-        mesh: Mesh::default(),
-        locked: Vec::new(),
-        quadric: Vec::new(),
+        mesh: Mesh {
+            positions: Vec::with_capacity(kept),
+            ..Mesh::default()
+        },
+        locked: Vec::with_capacity(kept),
+        quadric: Vec::with_capacity(kept),
         clusters: taken.len() as u64,
         removed: removed as u64,
-        cluster: Vec::new(),
+        cluster: Vec::with_capacity(kept),
     };
     for v in 0..n as u32 {
         let x = image[v as usize];
