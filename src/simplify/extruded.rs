@@ -216,10 +216,13 @@ fn corners_within(q: &[DVec2; 3], col: [isize; 2], limit2: f64) -> bool {
 pub(super) enum Attempt {
     /// Every point of the triangle lies in T.
     Certified,
-    /// Not certified, but part of the projection was: parts of the triangle may be.
-    Partly,
-    /// Not certified: too short along both axes, or its projection's centroid is not.
-    No,
+    /// Not certified whole, but its pieces may be: they span fewer layers (more columns are
+    /// uniform over them) and project to less.
+    Pieces,
+    /// Not certified, and no piece of it can be: it is steeper than `MOST_TILT` to both axes
+    /// nearest its plane, or spans fewer than `FROM_LAYERS` layers along each tried (its pieces
+    /// lie in its plane and span no more).
+    Never,
 }
 
 impl<'c> Extruded<'c> {
@@ -240,15 +243,15 @@ impl<'c> Extruded<'c> {
         let n = (t[1] - t[0]).cross(t[2] - t[0]).abs();
         let mut axes = [0, 1, 2];
         axes.sort_by(|&x, &y| n[x].total_cmp(&n[y]));
-        let mut found = Attempt::No;
+        let mut found = Attempt::Never;
         for &a in &axes[..2] {
             if n[a] > MOST_TILT * n.length() {
                 break; // the projection is not thin: the refinement costs less
             }
             match self.within_along(t, radii, a) {
                 Attempt::Certified => return Attempt::Certified,
-                Attempt::Partly => found = Attempt::Partly,
-                Attempt::No => {}
+                Attempt::Pieces => found = Attempt::Pieces,
+                Attempt::Never => {}
             }
         }
         found
@@ -258,7 +261,7 @@ impl<'c> Extruded<'c> {
         let lo_a = t.iter().map(|p| p[a]).fold(f64::INFINITY, f64::min);
         let hi_a = t.iter().map(|p| p[a]).fold(f64::NEG_INFINITY, f64::max);
         if hi_a - lo_a < FROM_LAYERS {
-            return Attempt::No;
+            return Attempt::Never;
         }
         let (u, v) = ((a + 1) % 3, (a + 2) % 3);
         let q = t.map(|p| DVec2::new(p[u], p[v]));
@@ -301,7 +304,7 @@ impl<'c> Extruded<'c> {
         while let Some(mut piece) = stack.pop() {
             judged += 1;
             if judged > NODE_BUDGET {
-                return Attempt::Partly;
+                return Attempt::Pieces;
             }
             piece.out_done |= piece
                 .out_hint
@@ -341,14 +344,10 @@ impl<'c> Extruded<'c> {
                 if *done {
                     continue;
                 }
-                // No uniform column of the class near enough: the whole triangle fails here,
-                // a piece hands back what its siblings certified.
+                // No uniform column of the class near enough over the triangle's layers: not
+                // certified whole, but its 3D pieces span fewer layers and may be.
                 let Some((col, d2)) = near.filter(|&(_, d2)| d2 <= limit2) else {
-                    return if judged == 1 {
-                        Attempt::No
-                    } else {
-                        Attempt::Partly
-                    };
+                    return Attempt::Pieces;
                 };
                 let slack = limit2.sqrt() - d2.sqrt();
                 *done = r <= slack || corners_within(&piece.q, col, limit2);
@@ -358,7 +357,7 @@ impl<'c> Extruded<'c> {
                 continue;
             }
             if r < R_MIN {
-                return Attempt::Partly;
+                return Attempt::Pieces;
             }
             // Split in two at the midpoint of the longest edge.
             let k = (0..3)
