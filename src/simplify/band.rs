@@ -1175,8 +1175,8 @@ mod tests {
     /// Large triangles over a wall that drifts along y (extruded piece by piece: no column near
     /// it is uniform over all of a triangle's 100 layers) pass the band test. The certificate
     /// does not certify them whole, and says so with `Pieces`: the band test's 3D pieces span
-    /// fewer layers and are certified. Left to the 3D refinement after the whole triangle's
-    /// no (the rule until 2026-12-07), they ran past its node budget and were refused.
+    /// fewer layers and are certified. Left to the 3D refinement alone after the whole
+    /// triangle's no (the rule until 2026-12-07), they were refused.
     #[test]
     fn triangles_over_a_drifting_wall_pass_by_pieces() {
         use crate::simplify::extruded::tests::TOLERANCES;
