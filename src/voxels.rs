@@ -69,6 +69,53 @@ impl VoxelBits {
         self.data[r * self.words + i / 64] >> (i % 64) & 1 == 1
     }
 
+    /// How many voxels in a row past `p` along axis `a`, stepping by `dir` (±1), read `value`
+    /// (false outside the grid), up to `limit`: the t < `limit` whose voxel p + (t + 1)·dir
+    /// along a is the first not `value`, else `limit`. One column read by strides, not voxel
+    /// by voxel through [`Self::get`].
+    pub fn alike_past(
+        &self,
+        p: [isize; 3],
+        a: usize,
+        dir: isize,
+        limit: usize,
+        value: bool,
+    ) -> usize {
+        let dims = self.dims.map(|d| d as isize);
+        let off_grid = (0..3).any(|b| b != a && !(0..dims[b]).contains(&p[b]));
+        if off_grid {
+            return if value { 0 } else { limit };
+        }
+        // Word and bit of voxel p with p[a] = 0, and the step along a: one bit along x, a row of
+        // words along y, a slab of rows along z.
+        let mut q = p;
+        q[a] = 0;
+        let row = self.row_index(q[1] as usize, q[2] as usize);
+        let (word, step) = match a {
+            0 => (row * self.words, 0),
+            1 => (row * self.words + q[0] as usize / 64, self.words),
+            _ => (
+                row * self.words + q[0] as usize / 64,
+                self.words * self.dims[1],
+            ),
+        };
+        let bit = |c: usize| match a {
+            0 => self.data[word + c / 64] >> (c % 64) & 1 == 1,
+            _ => self.data[word + c * step] >> (q[0] as usize % 64) & 1 == 1,
+        };
+        for t in 0..limit {
+            let c = p[a] + (t as isize + 1) * dir;
+            let set = (0..dims[a]).contains(&c) && bit(c as usize);
+            if set != value {
+                return t;
+            }
+            if !value && !(0..dims[a]).contains(&c) && (c < 0) == (dir < 0) {
+                return limit; // off the grid for good: false from here on
+            }
+        }
+        limit
+    }
+
     /// Bits i0..i0 + len of row (j, k) (len <= 64; bit t of the result is voxel i0 + t), false
     /// outside the grid.
     pub fn run(&self, i0: isize, j: isize, k: isize, len: usize) -> u64 {
@@ -188,6 +235,42 @@ mod tests {
             assert_eq!(bits.count(), want.iter().filter(|&&w| w).count() as u64);
             assert_eq!(8 * bits.data.len() as u64, VoxelBits::bytes_for([nx, 3, 2]));
             assert!(!bits.get(-1, 2, 1) && !bits.get(nx as isize, 2, 1));
+        }
+    }
+
+    /// Runs read by strides are those read voxel by voxel: every axis and direction, from
+    /// inside and outside the grid, on grids wider than a word and of mostly one class.
+    #[test]
+    fn runs_along_an_axis_are_read_as_voxel_by_voxel() {
+        let mut rng = fastrand::Rng::with_seed(5);
+        for _ in 0..40 {
+            let dims = [rng.usize(1..150), rng.usize(1..12), rng.usize(1..12)];
+            let mut bits = VoxelBits::new(dims);
+            let fill = rng.f64();
+            for k in 0..dims[2] {
+                for j in 0..dims[1] {
+                    let row = bits.row_index(j, k);
+                    for i in 0..dims[0] {
+                        if rng.f64() < fill {
+                            bits.row_mut(row)[i / 64] |= 1 << (i % 64);
+                        }
+                    }
+                }
+            }
+            for _ in 0..500 {
+                let p = dims.map(|d| rng.isize(-3..d as isize + 3));
+                let (a, dir, limit) = (rng.usize(0..3), [-1, 1][rng.usize(0..2)], rng.usize(0..40));
+                let value = rng.bool();
+                let by_voxel = (0..limit)
+                    .find(|&t| {
+                        let mut q = p;
+                        q[a] += (t as isize + 1) * dir;
+                        bits.get(q[0], q[1], q[2]) != value
+                    })
+                    .unwrap_or(limit);
+                let got = bits.alike_past(p, a, dir, limit, value);
+                assert_eq!(got, by_voxel, "{dims:?} {p:?} axis {a} dir {dir} {value}");
+            }
         }
     }
 }

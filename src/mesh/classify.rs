@@ -249,6 +249,28 @@ impl Classifier {
 }
 
 impl Classifier {
+    /// [`VoxelBits::alike_past`] for condition ⋆: how many voxels past `p` along axis `a`,
+    /// stepping by `dir` (±1), have class `inside` without a break, up to `limit`.
+    pub fn alike_past(
+        &self,
+        p: [isize; 3],
+        a: usize,
+        dir: isize,
+        limit: usize,
+        inside: bool,
+    ) -> usize {
+        if let Some(solid) = &self.solid {
+            return solid.alike_past(p, a, dir, limit, inside);
+        }
+        let mut q = p;
+        (0..limit)
+            .find(|&t| {
+                q[a] = p[a] + (t as isize + 1) * dir;
+                self.inside(q[0], q[1], q[2]) != inside
+            })
+            .unwrap_or(limit)
+    }
+
     /// The voxels of the 5×5×5 block with lowest corner `lo`: bit 25·dk + 5·dj + di set when
     /// voxel lo + (di, dj, dk) is inside (as [`Self::inside`]). Reads the 75 pixel ranges of
     /// the block's rays once instead of three per voxel.

@@ -150,11 +150,8 @@ impl Window<'_> {
         let mut voxel = [0isize; 3];
         voxel[u] = col[0];
         voxel[v] = col[1];
-        let mut inside_at = |j: i32| {
-            voxel[self.a] = j as isize;
-            self.cls.inside(voxel[0], voxel[1], voxel[2])
-        };
-        let inside = inside_at(j0);
+        voxel[self.a] = j0 as isize;
+        let inside = self.cls.inside(voxel[0], voxel[1], voxel[2]);
         let mut run = Run {
             axis,
             col: key,
@@ -164,19 +161,14 @@ impl Window<'_> {
             lo_end: false,
             hi_end: false,
         };
-        while run.hi < j1 + RUN_EXTRA {
-            if inside_at(run.hi + 1) != inside {
-                run.hi_end = true;
-                break;
-            }
-            run.hi += 1;
-        }
-        while run.hi >= j1 && run.lo > j0 - RUN_EXTRA {
-            if inside_at(run.lo - 1) != inside {
-                run.lo_end = true;
-                break;
-            }
-            run.lo -= 1;
+        // Up to RUN_EXTRA layers past j1, then (if the run reaches j1) down to RUN_EXTRA below j0.
+        let up = (j1 + RUN_EXTRA - j0) as usize;
+        let alike = self.cls.alike_past(voxel, self.a, 1, up, inside);
+        (run.hi, run.hi_end) = (j0 + alike as i32, alike < up);
+        if run.hi >= j1 {
+            let down = RUN_EXTRA as usize;
+            let alike = self.cls.alike_past(voxel, self.a, -1, down, inside);
+            (run.lo, run.lo_end) = (j0 - alike as i32, alike < down);
         }
         self.runs[at] = run;
         run.tells(j0, j1).unwrap_or(MIXED)
