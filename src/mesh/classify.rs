@@ -613,6 +613,22 @@ mod tests {
                 }
             }
         }
+        // Runs along each axis: by strides on the bits, voxel by voxel on the ranges.
+        for (t, p) in [[-2, 0, 3], [3, 2, 1], [8, 5, 6], [1, -1, 2], [6, 3, 0]]
+            .iter()
+            .enumerate()
+        {
+            for a in 0..3 {
+                for (dir, value) in [(1, true), (1, false), (-1, true), (-1, false)] {
+                    let limit = 2 + 3 * t;
+                    assert_eq!(
+                        solid.alike_past(*p, a, dir, limit, value),
+                        carved.alike_past(*p, a, dir, limit, value),
+                        "{p:?} axis {a} dir {dir} {value}"
+                    );
+                }
+            }
+        }
         assert!(after.0 < before.0 && after.0 > 0, "{after:?} vs {before:?}");
         for k in 0..5 {
             for j in 0..6 {
