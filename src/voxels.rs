@@ -249,10 +249,9 @@ mod tests {
             let fill = rng.f64();
             for k in 0..dims[2] {
                 for j in 0..dims[1] {
-                    let row = bits.row_index(j, k);
                     for i in 0..dims[0] {
                         if rng.f64() < fill {
-                            bits.row_mut(row)[i / 64] |= 1 << (i % 64);
+                            bits.set(i, j, k);
                         }
                     }
                 }
