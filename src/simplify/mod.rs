@@ -389,6 +389,68 @@ mod tests {
         assert_eq!(s.stats.rejected_band, 5);
     }
 
+    /// The flip test on the live mesh (`State::flips`, which a block's pass asks before copying
+    /// a region) says yes exactly where the region's checks refuse a collapse for a flip, at
+    /// targets near and off each edge of rough random surfaces, some of them already coarsened:
+    /// a yes is always a refusal there (Flip, or Topology found first), and every Flip refusal
+    /// is a yes. Both answers occur.
+    #[test]
+    fn flips_on_the_live_mesh_agree_with_the_region_check() {
+        let (mut yes, mut no) = (0, 0);
+        let mut seed = 0x9e37_79b9_7f4a_7c15_u64;
+        let mut unit = || {
+            seed = seed.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
+            (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        for case in 0..3 {
+            let cls = crate::mesh::classify::test_support::random([12, 12, 12], case);
+            let opts = defaults();
+            let mut start = extract(&cls);
+            if case > 0 {
+                // Coarsened part of the way, so that stars are larger and less regular.
+                let target_triangles = start.triangles.len() * (4 - case as usize) / 4;
+                let coarser = SimplifyOptions {
+                    target_triangles,
+                    ..opts
+                };
+                start = simplify(&start, &cls, coarser).0;
+            }
+            let s = State::new(start);
+            let mut scratch = Scratch::new(&cls, None, s.tris.len());
+            let live: Vec<[u32; 3]> = (0..s.tris.len())
+                .filter(|&t| s.tri_alive[t])
+                .map(|t| s.tris[t])
+                .collect();
+            for tri in live.iter().step_by(5) {
+                let (a, b) = (tri[0], tri[1]);
+                let mid = (s.pos[a as usize] + s.pos[b as usize]) / 2.0;
+                let off = DVec3::new(unit(), unit(), unit()) * 3.0;
+                for v in [s.best_target(a, b).1, mid, mid + off] {
+                    let flips = s.flips(a, b, v);
+                    let outcome = s.region(a, b).check(&mut scratch, &opts, v);
+                    if flips {
+                        yes += 1;
+                        assert!(
+                            matches!(outcome, Err(Reject::Flip | Reject::Topology)),
+                            "edge ({a}, {b}) to {v}: flips, but the region check says {:?}",
+                            outcome.as_ref().err()
+                        );
+                    } else {
+                        no += 1;
+                        assert!(
+                            !matches!(outcome, Err(Reject::Flip)),
+                            "edge ({a}, {b}) to {v}: a Flip refusal that State::flips missed"
+                        );
+                    }
+                }
+            }
+        }
+        assert!(
+            yes > 50 && no > 50,
+            "{yes} flips and {no} not: both should occur"
+        );
+    }
+
     /// The sweep check by pieces, wired in: a collapse whose old and new triangles wind around a
     /// piece's point is rejected (Sweep), the same collapse with the piece far away passes.
     /// Points are found where the region between the surfaces has winding number ±1.

@@ -288,6 +288,34 @@ impl State {
         out
     }
 
+    /// Whether collapsing edge (a, b) to `v` would flip or flatten one of the triangles around
+    /// a or b that does not hold both: the flip test of [`Region::check_moving`] on the live
+    /// mesh, without copying the region. Where the edge is a two-face edge its two faces are
+    /// the triangles holding both, so a yes here is a refusal there (Flip, or Topology first).
+    pub(super) fn flips(&self, a: u32, b: u32, v: DVec3) -> bool {
+        let stars = self.star[a as usize].iter().chain(&self.star[b as usize]);
+        for &t in stars {
+            let tri = self.tris[t as usize];
+            if tri.contains(&a) && tri.contains(&b) {
+                continue;
+            }
+            let p = tri.map(|x| self.pos[x as usize]);
+            let q = tri.map(|x| {
+                if x == a || x == b {
+                    v
+                } else {
+                    self.pos[x as usize]
+                }
+            });
+            let n_new = (q[1] - q[0]).cross(q[2] - q[0]);
+            let n_old = (p[1] - p[0]).cross(p[2] - p[0]);
+            if n_new.length_squared() <= 1e-18 || n_old.dot(n_new) <= 0.0 {
+                return true;
+            }
+        }
+        false
+    }
+
     /// The triangles around edge (a, b) and their vertices, copied.
     pub(super) fn region(&self, a: u32, b: u32) -> Region {
         let mut tris: Vec<(u32, [u32; 3])> = self.star[a as usize]
