@@ -114,6 +114,15 @@ pub(super) enum Reject {
     Intersection,
 }
 
+/// Whether a triangle at `old` that a collapse moves to `new` (same corners in the same order)
+/// degenerates (twice its area at most 10⁻⁹ voxel²) or turns over (its normal no longer on the
+/// old one's side): a flip, refused.
+pub(super) fn flipped(old: &[DVec3; 3], new: &[DVec3; 3]) -> bool {
+    let n_old = (old[1] - old[0]).cross(old[2] - old[0]);
+    let n_new = (new[1] - new[0]).cross(new[2] - new[0]);
+    n_new.length_squared() <= 1e-18 || n_old.dot(n_new) <= 0.0
+}
+
 /// The triangles around edge (a, b) and their vertices, copied from the mesh when the edge joins
 /// a batch. The regions of the batches in flight are disjoint (their vertex sets), and a commit
 /// changes only its own region's triangles and vertices, so the copy stays exact until this
@@ -257,18 +266,8 @@ impl Region {
                 old: *p,
             });
         }
-        for Survivor { new: q, .. } in &survivors {
-            let n_new = (q[1] - q[0]).cross(q[2] - q[0]);
-            if n_new.length_squared() <= 1e-18 {
-                return Err(Reject::Flip);
-            }
-        }
-        for Survivor { new: q, old: p, .. } in &survivors {
-            let n_old = (p[1] - p[0]).cross(p[2] - p[0]);
-            let n_new = (q[1] - q[0]).cross(q[2] - q[0]);
-            if n_old.dot(n_new) <= 0.0 {
-                return Err(Reject::Flip);
-            }
+        if survivors.iter().any(|c| flipped(&c.old, &c.new)) {
+            return Err(Reject::Flip);
         }
         // Triangles of the kept endpoint's star that do not hold the other one stay where they
         // are when v is that endpoint: they are already within the band and cross nothing, so

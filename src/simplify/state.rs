@@ -11,6 +11,7 @@ use super::quadric::{cheapest, Quadric};
 use super::queue::{bucket, Candidate, Queue};
 // Scratch, IdSet, Plan and Reject live with the checks that make them (region.rs), which
 // import nothing from here.
+use super::region::flipped;
 pub(super) use super::region::{Crossing, IdSet, Plan, Region, Reject, Scratch};
 use super::{regrow, SimplifyStats, HASH_CELL};
 use crate::mesh::Mesh;
@@ -289,8 +290,8 @@ impl State {
     }
 
     /// Whether collapsing edge (a, b) to `v` would flip or flatten one of the triangles around
-    /// a or b that does not hold both: the flip test of [`Region::check_moving`] on the live
-    /// mesh, without copying the region. Where the edge is a two-face edge its two faces are
+    /// a or b that does not hold both ([`flipped`]): the flip test of [`Region::check_moving`]
+    /// on the live mesh, without copying the region. Where the edge is a two-face edge its two faces are
     /// the triangles holding both, so a yes here is a refusal there (Flip, or Topology first).
     pub(super) fn flips(&self, a: u32, b: u32, v: DVec3) -> bool {
         let stars = self.star[a as usize].iter().chain(&self.star[b as usize]);
@@ -307,9 +308,7 @@ impl State {
                     self.pos[x as usize]
                 }
             });
-            let n_new = (q[1] - q[0]).cross(q[2] - q[0]);
-            let n_old = (p[1] - p[0]).cross(p[2] - p[0]);
-            if n_new.length_squared() <= 1e-18 || n_old.dot(n_new) <= 0.0 {
+            if flipped(&p, &q) {
                 return true;
             }
         }
