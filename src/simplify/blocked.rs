@@ -561,11 +561,11 @@ fn run_block(
         // A collapse that flips a triangle is refused before its region is copied: half of a
         // block's candidates on the gear, each 12 µs through the region's checks against
         // 0.4 µs here (docs/perf-log.md, "Flips refused on the live mesh").
-        let outcome = if s.flips(c.a, c.b, s.best_target(c.a, c.b).1) {
+        let v = s.best_target(c.a, c.b).1;
+        let outcome = if s.flips(c.a, c.b, v) {
             Err(Reject::Flip)
         } else {
-            let region = s.region(c.a, c.b);
-            region.check_moving(scratch, opts, region.target(), in_box)
+            s.region(c.a, c.b).check_moving(scratch, opts, v, in_box)
         };
         let outcome = outcome.and_then(|plan| {
             if !plan.in_plane {

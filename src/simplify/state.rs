@@ -291,8 +291,9 @@ impl State {
 
     /// Whether collapsing edge (a, b) to `v` would flip or flatten one of the triangles around
     /// a or b that does not hold both ([`flipped`]): the flip test of [`Region::check_moving`]
-    /// on the live mesh, without copying the region. Where the edge is a two-face edge its two faces are
-    /// the triangles holding both, so a yes here is a refusal there (Flip, or Topology first).
+    /// on the live mesh, without copying the region. Where the edge is a two-face edge its two
+    /// faces are the triangles holding both, so a yes here is a refusal there (Flip, or
+    /// Topology found first).
     pub(super) fn flips(&self, a: u32, b: u32, v: DVec3) -> bool {
         let stars = self.star[a as usize].iter().chain(&self.star[b as usize]);
         for &t in stars {
